@@ -1,0 +1,73 @@
+"""Env steps per second of the batched docking env, with random actions.
+
+Usage: ``python bench/env_throughput.py [--sizes 1 64 1024 4096] [--seconds 3] [--threads 2]``
+
+Each step is a full TorchRL ``step_and_maybe_reset`` (what a collector does), random actions
+drawn by ``action_spec.rand()`` included. The ``compound`` row (EKF + compound observation,
+once that pipeline exists) shows the filter's cost relative to the bare env.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import describe_machine  # noqa: E402
+
+
+def steps_per_second(env, seconds: float) -> float:
+    td = env.reset()
+    for _ in range(10):
+        td["action"] = env.action_spec.rand()
+        _, td = env.step_and_maybe_reset(td)
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        for _ in range(10):
+            td["action"] = env.action_spec.rand()
+            _, td = env.step_and_maybe_reset(td)
+        steps += 10
+    return steps * env.batch_size[0] / (time.perf_counter() - start)
+
+
+def pipelines():
+    from dockingrl.env import DockingEnv
+
+    yield "env (noise)", lambda n: DockingEnv(n, seed=0)
+    try:
+        from dockingrl import make_env
+    except ImportError:
+        return
+    yield "compound (env + EKF + concat)", lambda n: make_env("compound", n, seed=0)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096])
+    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    print(f"machine: {describe_machine()}")
+    rows = {}
+    for name, make in pipelines():
+        rows[name] = [steps_per_second(make(n), args.seconds) for n in args.sizes]
+    header = f"| pipeline | " + " | ".join(f"n={n}" for n in args.sizes) + " |"
+    print(header)
+    print("|---|" + "---|" * len(args.sizes))
+    for name, values in rows.items():
+        print(f"| {name} | " + " | ".join(f"{v:,.0f}" for v in values) + " |")
+    if len(rows) > 1:
+        base = next(iter(rows.values()))
+        for name, values in list(rows.items())[1:]:
+            ratio = " | ".join(f"{b / v:.2f}x" for b, v in zip(base, values))
+            print(f"| {name}: time per step relative to the bare env | {ratio} |")
+    print("(env steps per second; one step of one env = 1)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,13 @@
+"""dockingrl: learning to dock an AUV into a funnel-shaped docking station under ocean currents
+and noisy sensors, with deep reinforcement learning on TorchRL."""
+
+import gymnasium
+
+from dockingrl.env import DockingConfig, DockingEnv, contact_score
+
+__version__ = "0.1.0"
+
+if "dockingrl/Docking-v0" not in gymnasium.registry:
+    gymnasium.register(id="dockingrl/Docking-v0", entry_point="dockingrl.env.gym_env:DockingGymEnv")
+
+__all__ = ["DockingConfig", "DockingEnv", "contact_score", "__version__"]

@@ -1,0 +1,161 @@
+"""Every constant of the docking task, in one validated dataclass.
+
+Values are the paper's (Sec. 3-4.1, Tables 2 and 3) unless marked *chosen*: the paper does not
+give the PID gains nor the yaw inertia of its simulated vehicle; ours are chosen so that the
+closed-loop step response of surge and yaw rate follows the first-order model the EKF assumes
+(eq. 24, k = 2.5 1/s). ``tests/test_env.py::test_step_response_matches_first_order_model``
+measures that choice.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class DockingConfig:
+    """Constants of the docking task. Angles in rad, lengths in m, times in s."""
+
+    # --- time -----------------------------------------------------------------------------
+    dt: float = 0.2  # s, one env step (Sec. 4.1)
+    max_steps: int = 600  # steps, truncation after 2 min (Sec. 4.1)
+
+    # --- action bounds (eq. 3) ------------------------------------------------------------
+    surge_command_min: float = -0.4  # m/s, lower bound of v_d
+    surge_command_max: float = 0.8  # m/s, upper bound of v_d
+    yaw_rate_command_max: float = 0.3  # rad/s, |w_d| bound
+
+    # --- vehicle dynamics (eqs. 36-38) ----------------------------------------------------
+    mass: float = 60.0  # kg, added mass on surge and sway (Sec. 4.1)
+    yaw_inertia: float = 60.0  # kg m^2, *chosen* (not given by the paper)
+    linear_damping: float = 6.0  # N s/m, K_dl (Sec. 4.1)
+    quadratic_damping: float = 12.0  # N s^2/m^2, K_qdl (Sec. 4.1)
+    max_acceleration: float = 5.0  # m/s^2 (rad/s^2 on yaw), per-axis clip (eq. 37)
+    max_velocity: float = 1.0  # m/s (rad/s on yaw), per-axis clip (eq. 37)
+    max_thrust: float = 40.0  # N (N m on yaw), |tau| clip of the PID output (Sec. 3.2.1)
+
+    # --- low-level PID velocity controller, *chosen* ---------------------------------------
+    surge_kp: float = 144.0  # N/(m/s): (k_v * mass - K_dl) with k_v = 2.5 1/s
+    surge_ki: float = 40.0  # N/m, removes the steady-state error left by damping
+    surge_kd: float = 0.0  # N s^2/m, no derivative action: eq. 24 is first order
+    yaw_kp: float = 144.0  # N m/(rad/s): (k_w * yaw_inertia - K_dl) with k_w = 2.5 1/s
+    yaw_ki: float = 40.0  # N m/rad
+    yaw_kd: float = 0.0  # N m s^2/rad
+
+    # --- starting state (Sec. 4.1) -------------------------------------------------------
+    init_x: tuple[float, float] = (-30.0, -25.0)  # m
+    init_y: tuple[float, float] = (-7.5, 7.5)  # m
+    init_heading: tuple[float, float] = (-math.pi / 2, math.pi / 2)  # rad
+    ocean_current_range: tuple[float, float] = (-0.3, 0.3)  # m/s, each of oc_x, oc_y
+
+    # --- sensor noise (Table 2), standard deviations ---------------------------------------
+    noise: bool = True  # False gives the true observation (scenario ``no_noise``)
+    range_noise_fraction: float = 0.025  # rho: 2.5 % of the true range
+    bearing_noise: float = math.radians(1.5)  # rad, psi
+    heading_noise: float = math.radians(3.0)  # rad, alpha
+    velocity_noise: float = 0.02  # m/s, vx and vy (DVL)
+    yaw_rate_noise: float = math.radians(0.2)  # rad/s, w (IMU)
+
+    # --- reward (eqs. 4-12) --------------------------------------------------------------
+    max_dist: float = 30.0  # m, eq. 4
+    thrust_weight: float = 100.0  # w_tau, eq. 5
+    entry_speed_max: float = 0.3  # m/s, v_max of eq. 6 and of the success criterion
+    approach_distance: float = 3.0  # m, d_appro, eq. 6
+    entry_speed_weight: float = 10.0  # w_vel, eq. 6
+    aligned_weight: float = 1.0  # w_1, eq. 9
+    misaligned_weight: float = 3.05  # w_2, eq. 9
+    contact_weight: float = 200.0  # w_contact, eq. 11
+
+    # --- docking-station contact box and success (Sec. 4.1, Tables 6-7) --------------------
+    dock_x: tuple[float, float] = (-0.8, 0.0)  # m, x range of the contact box
+    dock_y: tuple[float, float] = (-0.5, 0.5)  # m, y range of the contact box
+    contact_speed_tolerance: float = 0.0  # m/s, added to entry_speed_max for success
+
+    def __post_init__(self) -> None:
+        def fail(name: str, why: str) -> None:
+            raise ValueError(f"DockingConfig.{name}: {why} (got {getattr(self, name)!r})")
+
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            values = value if isinstance(value, tuple) else (value,)
+            if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+                fail(field.name, "must be finite")
+        for name in (
+            "dt",
+            "mass",
+            "yaw_inertia",
+            "max_acceleration",
+            "max_velocity",
+            "max_thrust",
+            "max_dist",
+            "thrust_weight",
+            "approach_distance",
+            "entry_speed_max",
+            "contact_weight",
+            "yaw_rate_command_max",
+        ):
+            if getattr(self, name) <= 0:
+                fail(name, "must be > 0")
+        if not isinstance(self.max_steps, int) or self.max_steps < 1:
+            fail("max_steps", "must be an integer >= 1")
+        for name in (
+            "linear_damping",
+            "quadratic_damping",
+            "surge_kp",
+            "surge_ki",
+            "surge_kd",
+            "yaw_kp",
+            "yaw_ki",
+            "yaw_kd",
+            "range_noise_fraction",
+            "bearing_noise",
+            "heading_noise",
+            "velocity_noise",
+            "yaw_rate_noise",
+            "entry_speed_weight",
+            "aligned_weight",
+            "misaligned_weight",
+            "contact_speed_tolerance",
+        ):
+            if getattr(self, name) < 0:
+                fail(name, "must be >= 0")
+        if self.surge_kp == 0 and self.surge_ki == 0:
+            fail("surge_kp", "surge PID needs a proportional or integral gain")
+        if self.yaw_kp == 0 and self.yaw_ki == 0:
+            fail("yaw_kp", "yaw PID needs a proportional or integral gain")
+        if self.surge_command_min >= self.surge_command_max:
+            fail("surge_command_min", "must be < surge_command_max")
+        for name in ("init_x", "init_y", "init_heading", "ocean_current_range", "dock_x", "dock_y"):
+            low, high = getattr(self, name)
+            if not low < high:
+                fail(name, "empty range: needs low < high")
+        if not (-math.pi <= self.init_heading[0] and self.init_heading[1] <= math.pi):
+            fail("init_heading", "must lie within [-pi, pi]")
+        if self.dock_x[0] <= self.init_x[1]:
+            fail("dock_x", "the contact box must not overlap the start area (dock_x[0] > init_x[1])")
+
+    def replace(self, **changes) -> DockingConfig:
+        """Return a copy with ``changes`` applied (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def action_low(self) -> tuple[float, float]:
+        return (self.surge_command_min, -self.yaw_rate_command_max)
+
+    @property
+    def action_high(self) -> tuple[float, float]:
+        return (self.surge_command_max, self.yaw_rate_command_max)
+
+    @property
+    def observation_noise_std(self) -> tuple[float, float, float, float, float, float]:
+        """Table 2 sigmas; the first entry is relative to the true range rho."""
+        return (
+            self.range_noise_fraction,
+            self.bearing_noise,
+            self.heading_noise,
+            self.velocity_noise,
+            self.velocity_noise,
+            self.yaw_rate_noise,
+        )

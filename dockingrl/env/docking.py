@@ -1,0 +1,356 @@
+"""The batched docking environment (Sec. 3 and 4.1 of the paper), a TorchRL ``EnvBase``."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Bounded, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from dockingrl.env.config import DockingConfig
+from dockingrl.env.dynamics import (
+    ground_velocity_body,
+    observation_from_state,
+    pid_thrust,
+    pose_update,
+    velocity_update,
+    wrap_angle,
+)
+from dockingrl.env.reward import (
+    contact_reward,
+    contact_score,
+    distance_reward,
+    entry_velocity_reward,
+    thrust_reward,
+)
+
+OBSERVATION_DIM = 6
+TRUE_STATE_DIM = 6
+ACTION_DIM = 2
+
+
+def _uniform(low: float, high: float, n: int, generator, device, dtype) -> torch.Tensor:
+    return low + (high - low) * torch.rand(n, generator=generator, device=device, dtype=dtype)
+
+
+class DockingEnv(EnvBase):
+    """Dock an under-actuated AUV into a funnel-shaped docking station (DS) under ocean currents.
+
+    ## Description
+
+    Re-implementation of the docking task of "Autonomous Underwater Vehicle Docking Under
+    Realistic Assumptions Using Deep Reinforcement Learning" (Sec. 3, 4.1). A torpedo-shaped
+    AUV without rudders, commanded in surge and yaw rate through a low-level PID velocity
+    controller, must enter a funnel whose mouth opens towards -x at the origin, slowly enough
+    (<= 0.3 m/s over ground) and well aligned, while a constant ocean current drifts it. Its
+    sensors (inverted USBL, DVL, IMU) are noisy (Table 2). ``num_envs`` independent copies step
+    at once with tensor operations, on any torch device.
+
+    ## Action Space
+
+    ``action``: ``(num_envs, 2)`` float, the velocity set-points of eq. 3.
+
+    | Num | Action | Min | Max | Unit |
+    |-----|--------|-----|-----|------|
+    | 0 | desired surge ``v_d`` | -0.4 | 0.8 | m/s |
+    | 1 | desired yaw rate ``w_d`` | -0.3 | 0.3 | rad/s |
+
+    Actions outside the bounds are clipped to them; a NaN or infinite action raises
+    ``ValueError``, and so does an action of the wrong shape.
+
+    ## Observation Space
+
+    ``observation``: ``(num_envs, 6)`` float, eq. 2, noisy unless ``config.noise`` is False.
+
+    | Num | Observation | Sensor | Noise sigma (Table 2) | Unit |
+    |-----|-------------|--------|-----------------------|------|
+    | 0 | range to the DS ``rho`` | USBL | 2.5 % of rho | m |
+    | 1 | bearing to the DS ``psi``, in (-pi, pi] | USBL | 1.5 deg | rad |
+    | 2 | heading ``alpha`` in the DS frame, in (-pi, pi] | IMU | 3 deg | rad |
+    | 3 | surge velocity over ground ``vx`` (body frame) | DVL | 0.02 | m/s |
+    | 4 | sway velocity over ground ``vy`` (body frame) | DVL | 0.02 | m/s |
+    | 5 | yaw rate ``w`` | IMU | 0.2 deg/s | rad/s |
+
+    Also in each tensordict, for the filter, the baseline and the evaluation (a policy must not
+    need them): ``ocean_current`` ``(num_envs, 2)`` m/s in the DS frame (known to the vehicle, as
+    the paper assumes for the EKF); ``true_state`` ``(num_envs, 6)``
+    ``[x, y, alpha, u, v, r]`` (pose in the DS frame, velocity through the water in the body
+    frame); ``step_count`` ``(num_envs, 1)``; and, meaningful on the contact step only,
+    ``success``, ``contact_score`` (``g`` of eq. 10) and ``contact_speed`` (m/s over ground);
+    they are 0 / False on other steps.
+
+    ## Transition Dynamics
+
+    Every ``dt = 0.2`` s: a PID turns the velocity errors ``(v_d - u, w_d - r)`` into the
+    thrust ``tau = (tau_u, tau_r)``, clipped to +-40 N (N m); sway is not actuated. Per axis,
+    ``acc = (tau - d) / m`` with damping ``d = K_dl v + K_qdl |v| v`` (eq. 36), ``acc`` clipped to
+    +-5, then ``v = clip(v + dt acc, -1, 1)`` (eq. 37). The pose integrates the body velocity
+    rotated into the DS frame plus the ocean current (eq. 38). The PID gains and the yaw inertia
+    are not in the paper; see :class:`DockingConfig`.
+
+    ## Reward
+
+    Summed every step (eq. 12): ``r_dist = -rho / 30`` (eq. 4), ``r_tau = -||tau|| / 100``
+    (eq. 5), ``r_entry_vel = -10 max(V - 0.3, 0) (3 - rho) / 3`` inside 3 m (eq. 6, ``V`` the
+    ground speed), and on contact ``r_g = 200 g`` (eqs. 7-11) with ``g = 1`` for a perfect
+    entry and ``g <= 0`` when the AUV misses the funnel.
+
+    ## Starting State
+
+    ``x ~ U(-30, -25)``, ``y ~ U(-7.5, 7.5)``, ``alpha ~ U(-pi/2, pi/2)``, at rest, ocean
+    current ``oc_x, oc_y ~ U(-0.3, 0.3)``, all independent (Sec. 4.1).
+
+    ## Episode End
+
+    ``terminated`` on contact: ``-0.8 <= x <= 0`` and ``-0.5 <= y <= 0.5`` (Sec. 4.1).
+    ``truncated`` after 600 steps (2 min). Success (Tables 6-7): contact with ``g > 0`` and
+    ground speed ``<= 0.3`` m/s (+ ``contact_speed_tolerance``).
+
+    ## Arguments
+
+    Args:
+        num_envs: number of independent envs stepped at once (the batch size).
+
+    Keyword Args:
+        config: a :class:`DockingConfig`; defaults to the paper's values.
+        device: torch device of every tensor.
+        seed: seed of the env's own ``torch.Generator``; ``None`` draws one from torch's global
+            generator. The same seed gives bit-identical rollouts on CPU.
+        dtype: floating dtype of the simulation (float32 by default).
+
+    Examples:
+        >>> env = DockingEnv(num_envs=4, seed=0)
+        >>> td = env.rollout(10, break_when_any_done=False)
+        >>> td["next", "observation"].shape
+        torch.Size([4, 10, 6])
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        config: DockingConfig | None = None,
+        device: torch.device | str = "cpu",
+        seed: int | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if config is None:
+            config = DockingConfig()
+        if not isinstance(config, DockingConfig):
+            raise TypeError(f"config must be a DockingConfig, got {type(config).__name__}")
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.num_envs = num_envs
+        self.config = config
+        self.dtype = dtype
+        self._make_specs()
+        self._make_constants()
+        n, dev = num_envs, self.device
+        self._pose = torch.zeros(n, 3, device=dev, dtype=dtype)
+        self._velocity = torch.zeros(n, 3, device=dev, dtype=dtype)
+        self._current = torch.zeros(n, 2, device=dev, dtype=dtype)
+        self._integral = torch.zeros(n, 2, device=dev, dtype=dtype)
+        self._previous_error = torch.zeros(n, 2, device=dev, dtype=dtype)
+        self._step_count = torch.zeros(n, 1, device=dev, dtype=torch.int64)
+        if seed is None:
+            seed = int(torch.randint(0, 2**62, (1,)).item())
+        self.set_seed(seed)
+
+    # -- set-up ---------------------------------------------------------------------------
+    def _make_constants(self) -> None:
+        cfg, dev, dtype = self.config, self.device, self.dtype
+
+        def vector(*values: float) -> torch.Tensor:
+            return torch.tensor(values, device=dev, dtype=dtype)
+
+        self._kp = vector(cfg.surge_kp, cfg.yaw_kp)
+        self._ki = vector(cfg.surge_ki, cfg.yaw_ki)
+        self._kd = vector(cfg.surge_kd, cfg.yaw_kd)
+        self._inertia = vector(cfg.mass, cfg.mass, cfg.yaw_inertia)
+        self._action_low = vector(*cfg.action_low)
+        self._action_high = vector(*cfg.action_high)
+        self._noise_std = vector(*cfg.observation_noise_std)
+
+    def _make_specs(self) -> None:
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+
+        def unbounded(*shape: int, dt: torch.dtype = dtype) -> Unbounded:
+            return Unbounded(shape=(n, *shape), device=dev, dtype=dt)
+
+        def flag() -> Binary:
+            return Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
+
+        self.observation_spec = Composite(
+            observation=unbounded(OBSERVATION_DIM),
+            ocean_current=unbounded(2),
+            true_state=unbounded(TRUE_STATE_DIM),
+            step_count=unbounded(1, dt=torch.int64),
+            success=flag(),
+            contact_score=unbounded(1),
+            contact_speed=unbounded(1),
+            shape=(n,),
+            device=dev,
+        )
+        self.action_spec = Bounded(
+            low=torch.tensor(cfg.action_low, dtype=dtype).expand(n, ACTION_DIM).clone(),
+            high=torch.tensor(cfg.action_high, dtype=dtype).expand(n, ACTION_DIM).clone(),
+            shape=(n, ACTION_DIM),
+            device=dev,
+            dtype=dtype,
+        )
+        self.reward_spec = unbounded(1)
+        self.full_done_spec = Composite(
+            done=flag(), terminated=flag(), truncated=flag(), shape=(n,), device=dev
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is None:
+            return
+        self.rng = torch.Generator(device=self.device)
+        self.rng.manual_seed(int(seed))
+
+    # -- helpers -------------------------------------------------------------------------
+    def _observe(self) -> torch.Tensor:
+        """Eq. 2 on the true state, plus the Gaussian noise of Table 2 when enabled."""
+        x, y, alpha = self._pose.unbind(-1)
+        u, v, r = self._velocity.unbind(-1)
+        obs = observation_from_state(x, y, alpha, u, v, r, self._current)
+        if not self.config.noise:
+            return obs
+        std = self._noise_std * torch.cat((obs[:, :1], torch.ones_like(obs[:, 1:])), dim=-1)
+        noisy = obs + std * torch.randn(obs.shape, generator=self.rng, device=self.device,
+                                        dtype=self.dtype)
+        angles = wrap_angle(noisy[:, 1:3])
+        return torch.cat((noisy[:, :1], angles, noisy[:, 3:]), dim=-1)
+
+    def _output(self, observation: torch.Tensor, **entries: torch.Tensor) -> TensorDict:
+        return TensorDict(
+            {
+                "observation": observation,
+                "ocean_current": self._current.clone(),
+                "true_state": torch.cat((self._pose, self._velocity), dim=-1),
+                "step_count": self._step_count.clone(),
+                **entries,
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    # -- EnvBase API ---------------------------------------------------------------------
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        cfg, n, dev, dtype, gen = self.config, self.num_envs, self.device, self.dtype, self.rng
+        pose = torch.stack(
+            (
+                _uniform(*cfg.init_x, n, gen, dev, dtype),
+                _uniform(*cfg.init_y, n, gen, dev, dtype),
+                _uniform(*cfg.init_heading, n, gen, dev, dtype),
+            ),
+            dim=-1,
+        )
+        current = torch.stack(
+            (
+                _uniform(*cfg.ocean_current_range, n, gen, dev, dtype),
+                _uniform(*cfg.ocean_current_range, n, gen, dev, dtype),
+            ),
+            dim=-1,
+        )
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if mask is None:
+            self._pose = pose
+            self._current = current
+            self._velocity = torch.zeros_like(self._velocity)
+            self._integral = torch.zeros_like(self._integral)
+            self._previous_error = torch.zeros_like(self._previous_error)
+            self._step_count = torch.zeros_like(self._step_count)
+        else:
+            mask = mask.reshape(n, 1)
+            self._pose = torch.where(mask, pose, self._pose)
+            self._current = torch.where(mask, current, self._current)
+            self._velocity = self._velocity.masked_fill(mask, 0.0)
+            self._integral = self._integral.masked_fill(mask, 0.0)
+            self._previous_error = self._previous_error.masked_fill(mask, 0.0)
+            self._step_count = self._step_count.masked_fill(mask, 0)
+        false = torch.zeros(n, 1, dtype=torch.bool, device=dev)
+        zero = torch.zeros(n, 1, dtype=dtype, device=dev)
+        return self._output(
+            self._observe(),
+            done=false,
+            terminated=false.clone(),
+            truncated=false.clone(),
+            success=false.clone(),
+            contact_score=zero,
+            contact_speed=zero.clone(),
+        )
+
+    def _validated_action(self, action: torch.Tensor) -> torch.Tensor:
+        expected = (self.num_envs, ACTION_DIM)
+        if tuple(action.shape) != expected:
+            raise ValueError(
+                f"action must have shape {expected} (num_envs, [v_d, w_d]), got {tuple(action.shape)}"
+            )
+        if not bool(torch.isfinite(action).all()):
+            raise ValueError("action contains NaN or inf; the docking env accepts finite actions only")
+        action = action.to(device=self.device, dtype=self.dtype)
+        return torch.maximum(torch.minimum(action, self._action_high), self._action_low)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        cfg = self.config
+        action = self._validated_action(tensordict.get("action"))
+
+        error = action - self._velocity[:, 0::2]
+        tau, self._integral = pid_thrust(
+            error, self._integral, self._previous_error, self._kp, self._ki, self._kd,
+            cfg.dt, cfg.max_thrust,
+        )
+        self._previous_error = error
+        tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
+        self._velocity = velocity_update(
+            self._velocity, tau3, self._inertia, cfg.linear_damping, cfg.quadratic_damping,
+            cfg.max_acceleration, cfg.max_velocity, cfg.dt,
+        )
+        self._pose = pose_update(self._pose, self._velocity, self._current, cfg.dt)
+        self._step_count = self._step_count + 1
+
+        x, y, alpha = self._pose.unbind(-1)
+        rho = torch.sqrt(x * x + y * y)
+        vx, vy = ground_velocity_body(alpha, self._velocity[:, 0], self._velocity[:, 1],
+                                      self._current)
+        speed = torch.sqrt(vx * vx + vy * vy)
+        contact = (x >= cfg.dock_x[0]) & (x <= cfg.dock_x[1]) & (y >= cfg.dock_y[0]) & (
+            y <= cfg.dock_y[1]
+        )
+        score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
+        score = torch.where(contact, score, torch.zeros_like(score))
+        reward = self.step_reward(rho, tau, speed, score)
+
+        terminated = contact.unsqueeze(-1)
+        truncated = (self._step_count >= cfg.max_steps) & ~terminated
+        speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
+        success = contact & (score > 0) & (speed <= speed_limit)
+        return self._output(
+            self._observe(),
+            reward=reward.unsqueeze(-1),
+            done=terminated | truncated,
+            terminated=terminated,
+            truncated=truncated,
+            success=success.unsqueeze(-1),
+            contact_score=score.unsqueeze(-1),
+            contact_speed=torch.where(contact, speed, torch.zeros_like(speed)).unsqueeze(-1),
+        )
+
+    def step_reward(
+        self, rho: torch.Tensor, tau: torch.Tensor, speed: torch.Tensor, score: torch.Tensor
+    ) -> torch.Tensor:
+        """Eq. 12: ``r = r_dist + r_tau + r_entry_vel + r_g`` (``score`` is 0 off contact)."""
+        cfg = self.config
+        return (
+            distance_reward(rho, cfg.max_dist)
+            + thrust_reward(tau, cfg.thrust_weight)
+            + entry_velocity_reward(
+                speed, rho, cfg.entry_speed_max, cfg.approach_distance, cfg.entry_speed_weight
+            )
+            + contact_reward(score, cfg.contact_weight)
+        )

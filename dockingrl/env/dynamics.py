@@ -1,0 +1,164 @@
+"""Vehicle model and sensor geometry of the docking task, as batched torch functions.
+
+Every function works on tensors of any leading batch shape and is differentiable where the
+maths is. Frames: the world frame is the docking-station (DS) frame, DS at the origin, funnel
+mouth towards -x; ``alpha`` is the AUV heading in that frame (0 = pointing at the DS along +x).
+Body-frame velocities ``(u, v, r)`` are surge, sway and yaw rate through the water.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+TWO_PI = 2.0 * math.pi
+
+
+def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
+    """Wrap angles to (-pi, pi]."""
+    return math.pi - torch.remainder(math.pi - angle, TWO_PI)
+
+
+def pid_thrust(
+    error: torch.Tensor,
+    integral: torch.Tensor,
+    previous_error: torch.Tensor,
+    kp: torch.Tensor,
+    ki: torch.Tensor,
+    kd: torch.Tensor,
+    dt: float,
+    max_thrust: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Low-level PID velocity controller of Sec. 4.1: velocity error -> tau.
+
+    The paper gives no gains; see :class:`~dockingrl.env.DockingConfig`. The output is clipped to
+    ``+-max_thrust`` (Sec. 3.2.1). Anti-windup: the integral term alone never exceeds the thrust
+    limit, so a long saturation does not cause a large overshoot.
+
+    Args:
+        error: ``(..., k)`` commanded minus measured velocity, one column per actuated axis.
+        integral: ``(..., k)`` running integral of the error.
+        previous_error: ``(..., k)`` error at the previous step (derivative term).
+        kp, ki, kd: ``(k,)`` gains per axis.
+
+    Returns:
+        ``(tau, integral)``: the clipped thrust ``(..., k)`` and the updated integral.
+    """
+    integral = integral + error * dt
+    limit = max_thrust / ki.clamp_min(1e-12)
+    integral = torch.maximum(torch.minimum(integral, limit), -limit)
+    tau = kp * error + ki * integral + kd * (error - previous_error) / dt
+    return tau.clamp(-max_thrust, max_thrust), integral
+
+
+def hydrodynamic_damping(
+    velocity: torch.Tensor, linear: float, quadratic: float
+) -> torch.Tensor:
+    """Damping force of eq. 36: ``d = K_dl * v + K_qdl * |v| * v``."""
+    return linear * velocity + quadratic * velocity.abs() * velocity
+
+
+def velocity_update(
+    velocity: torch.Tensor,
+    tau: torch.Tensor,
+    inertia: torch.Tensor,
+    linear_damping: float,
+    quadratic_damping: float,
+    max_acceleration: float,
+    max_velocity: float,
+    dt: float,
+) -> torch.Tensor:
+    """Eqs. 36-37: ``acc = (tau - d) / m``; ``v = clip(v + dt * clip(acc), -max_v, max_v)``.
+
+    Args:
+        velocity: ``(..., 3)`` body velocity ``(u, v, r)`` through the water.
+        tau: ``(..., 3)`` force / moment per axis (sway has no actuator: 0).
+        inertia: ``(3,)`` mass (surge, sway) and yaw inertia.
+    """
+    damping = hydrodynamic_damping(velocity, linear_damping, quadratic_damping)
+    acceleration = ((tau - damping) / inertia).clamp(-max_acceleration, max_acceleration)
+    return (velocity + dt * acceleration).clamp(-max_velocity, max_velocity)
+
+
+def pose_update(
+    pose: torch.Tensor, velocity: torch.Tensor, current: torch.Tensor, dt: float
+) -> torch.Tensor:
+    """Eq. 38: integrate the body velocity, rotated to the DS frame, plus the ocean current.
+
+    Args:
+        pose: ``(..., 3)`` ``(x, y, alpha)``.
+        velocity: ``(..., 3)`` ``(u, v, r)``.
+        current: ``(..., 2)`` ocean current ``(oc_x, oc_y)`` in the DS frame.
+
+    Returns:
+        The next pose, heading wrapped to (-pi, pi].
+    """
+    x, y, alpha = pose.unbind(-1)
+    u, v, r = velocity.unbind(-1)
+    cos, sin = torch.cos(alpha), torch.sin(alpha)
+    x = x + (cos * u - sin * v + current[..., 0]) * dt
+    y = y + (sin * u + cos * v + current[..., 1]) * dt
+    alpha = wrap_angle(alpha + r * dt)
+    return torch.stack((x, y, alpha), dim=-1)
+
+
+def ground_velocity_body(
+    alpha: torch.Tensor, surge: torch.Tensor, sway: torch.Tensor, current: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Velocity over ground in the body frame, what a bottom-locked DVL measures (eq. 2).
+
+    ``(vx, vy) = (u, v) + R(alpha)^T oc``.
+    """
+    cos, sin = torch.cos(alpha), torch.sin(alpha)
+    vx = surge + current[..., 0] * cos + current[..., 1] * sin
+    vy = sway + current[..., 1] * cos - current[..., 0] * sin
+    return vx, vy
+
+
+def observation_from_state(
+    x: torch.Tensor,
+    y: torch.Tensor,
+    alpha: torch.Tensor,
+    surge: torch.Tensor,
+    sway: torch.Tensor,
+    yaw_rate: torch.Tensor,
+    current: torch.Tensor,
+    min_range: float = 0.0,
+) -> torch.Tensor:
+    """The noise-free observation of eq. 2, which is also the EKF measurement model h (eq. 26).
+
+    ``o = [rho, psi, alpha, vx, vy, w]``: range and bearing to the DS (USBL), heading, velocity
+    over ground in the body frame (DVL) and yaw rate (IMU). Eq. 26 is this function with zero
+    sway, as the EKF state has none.
+
+    Args:
+        min_range: lower bound on rho inside the bearing's ``atan2``; 0 reproduces eq. 2
+            exactly, the EKF passes a small positive value so that gradients stay finite.
+
+    Returns:
+        ``(..., 6)``, angles wrapped to (-pi, pi].
+    """
+    rho = torch.sqrt(x * x + y * y)
+    if min_range > 0:
+        rho = rho.clamp_min(min_range)
+    psi = wrap_angle(torch.atan2(-y, -x) - alpha)
+    vx, vy = ground_velocity_body(alpha, surge, sway, current)
+    return torch.stack((rho, psi, wrap_angle(alpha), vx, vy, yaw_rate), dim=-1)
+
+
+def pose_from_observation(observation: torch.Tensor) -> torch.Tensor:
+    """Invert the geometric part of eq. 2 (eq. 26): ``(rho, psi, alpha) -> (x, y, alpha)``.
+
+    The DS is seen at bearing ``psi`` from the AUV, so the AUV is at ``-rho`` along the world
+    direction ``psi + alpha``.
+
+    Args:
+        observation: ``(..., k >= 3)`` whose first three entries are ``rho, psi, alpha``.
+
+    Returns:
+        ``(..., 3)`` pose ``(x, y, alpha)``.
+    """
+    rho, psi, alpha = observation[..., 0], observation[..., 1], observation[..., 2]
+    direction = psi + alpha
+    return torch.stack((-rho * torch.cos(direction), -rho * torch.sin(direction), alpha), dim=-1)

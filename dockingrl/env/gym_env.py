@@ -1,0 +1,86 @@
+"""A single-env Gymnasium view of :class:`DockingEnv` (numpy in, numpy out).
+
+Registered as ``dockingrl/Docking-v0`` on ``import dockingrl``, so that any Gymnasium-based
+library can use the task::
+
+    import gymnasium, dockingrl
+    env = gymnasium.make("dockingrl/Docking-v0")
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium import spaces
+
+from dockingrl.env.config import DockingConfig
+from dockingrl.env.docking import ACTION_DIM, OBSERVATION_DIM, DockingEnv
+
+_INFO_KEYS = ("success", "contact_score", "contact_speed", "step_count")
+
+
+class DockingGymEnv(gymnasium.Env):
+    """The docking task as a ``gymnasium.Env``; see :class:`DockingEnv` for the full description.
+
+    Observations are float32 ``(6,)`` (eq. 2), actions float32 ``(2,)`` (eq. 3, clipped to the
+    bounds). ``info`` holds ``ocean_current``, ``true_state`` and, on the last step, ``success``,
+    ``contact_score`` and ``contact_speed``.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: DockingConfig | None = None) -> None:
+        self._env = DockingEnv(1, config=config, seed=0)
+        cfg = self._env.config
+        self.action_space = spaces.Box(
+            low=np.array(cfg.action_low, dtype=np.float32),
+            high=np.array(cfg.action_high, dtype=np.float32),
+            dtype=np.float32,
+        )
+        inf, pi = np.inf, np.float32(math.pi)
+        self.observation_space = spaces.Box(
+            low=np.array([0.0, -pi, -pi, -inf, -inf, -inf], dtype=np.float32),
+            high=np.array([inf, pi, pi, inf, inf, inf], dtype=np.float32),
+            shape=(OBSERVATION_DIM,),
+            dtype=np.float32,
+        )
+        self._td = None
+
+    @staticmethod
+    def _info(td) -> dict[str, Any]:
+        info = {
+            "ocean_current": td["ocean_current"][0].numpy(),
+            "true_state": td["true_state"][0].numpy(),
+        }
+        for key in _INFO_KEYS:
+            if key in td.keys():
+                info[key] = td[key][0].item()
+        return info
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self._env.set_seed(seed)
+        elif self._td is None:
+            self._env.set_seed(int(self.np_random.integers(0, 2**62)))
+        self._td = self._env.reset()
+        return self._td["observation"][0].numpy().astype(np.float32), self._info(self._td)
+
+    def step(self, action):
+        if self._td is None:
+            raise RuntimeError("call reset() before step()")
+        action = torch.as_tensor(np.asarray(action, dtype=np.float32)).reshape(1, ACTION_DIM)
+        self._td["action"] = action
+        out = self._env.step(self._td)["next"]
+        self._td = out.clone()
+        return (
+            out["observation"][0].numpy().astype(np.float32),
+            float(out["reward"][0, 0]),
+            bool(out["terminated"][0, 0]),
+            bool(out["truncated"][0, 0]),
+            self._info(out),
+        )
