@@ -56,7 +56,7 @@ def main(argv=None) -> None:
     rows = {}
     for name, make in pipelines():
         rows[name] = [steps_per_second(make(n), args.seconds) for n in args.sizes]
-    header = f"| pipeline | " + " | ".join(f"n={n}" for n in args.sizes) + " |"
+    header = "| pipeline | " + " | ".join(f"n={n}" for n in args.sizes) + " |"
     print(header)
     print("|---|" + "---|" * len(args.sizes))
     for name, values in rows.items():
@@ -64,7 +64,7 @@ def main(argv=None) -> None:
     if len(rows) > 1:
         base = next(iter(rows.values()))
         for name, values in list(rows.items())[1:]:
-            ratio = " | ".join(f"{b / v:.2f}x" for b, v in zip(base, values))
+            ratio = " | ".join(f"{b / v:.2f}x" for b, v in zip(base, values, strict=True))
             print(f"| {name}: time per step relative to the bare env | {ratio} |")
     print("(env steps per second; one step of one env = 1)")
 

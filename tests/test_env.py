@@ -157,10 +157,14 @@ def test_noise_free_observation_equals_true_geometry():
     ground_x = torch.cos(alpha) * u - torch.sin(alpha) * v + oc[:, 0]
     ground_y = torch.sin(alpha) * u + torch.cos(alpha) * v + oc[:, 1]
     torch.testing.assert_close(obs[:, 3], torch.cos(alpha) * ground_x + torch.sin(alpha) * ground_y)
-    torch.testing.assert_close(obs[:, 4], -torch.sin(alpha) * ground_x + torch.cos(alpha) * ground_y)
+    torch.testing.assert_close(
+        obs[:, 4], -torch.sin(alpha) * ground_x + torch.cos(alpha) * ground_y
+    )
     torch.testing.assert_close(obs[:, 5], r)
     # and the pose is recovered from it
-    torch.testing.assert_close(pose_from_observation(obs), td["true_state"][:, :3], atol=1e-4, rtol=0)
+    torch.testing.assert_close(
+        pose_from_observation(obs), td["true_state"][:, :3], atol=1e-4, rtol=0
+    )
 
 
 def test_noise_statistics_match_table_2():
@@ -225,8 +229,15 @@ def test_out_of_bound_actions_are_clipped():
 
 @pytest.mark.parametrize(
     "field, value",
-    [("dt", -0.1), ("max_steps", 0), ("init_x", (-25.0, -30.0)), ("mass", 0.0),
-     ("velocity_noise", -1.0), ("surge_command_min", 1.0), ("max_dist", float("nan"))],
+    [
+        ("dt", -0.1),
+        ("max_steps", 0),
+        ("init_x", (-25.0, -30.0)),
+        ("mass", 0.0),
+        ("velocity_noise", -1.0),
+        ("surge_command_min", 1.0),
+        ("max_dist", float("nan")),
+    ],
 )
 def test_impossible_config_names_the_field(field, value):
     with pytest.raises(ValueError, match=field):

@@ -134,7 +134,9 @@ class DockingConfig:
         if not (-math.pi <= self.init_heading[0] and self.init_heading[1] <= math.pi):
             fail("init_heading", "must lie within [-pi, pi]")
         if self.dock_x[0] <= self.init_x[1]:
-            fail("dock_x", "the contact box must not overlap the start area (dock_x[0] > init_x[1])")
+            fail(
+                "dock_x", "the contact box must not overlap the start area (dock_x[0] > init_x[1])"
+            )
 
     def replace(self, **changes) -> DockingConfig:
         """Return a copy with ``changes`` applied (validated again)."""

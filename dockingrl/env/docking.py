@@ -221,8 +221,9 @@ class DockingEnv(EnvBase):
         if not self.config.noise:
             return obs
         std = self._noise_std * torch.cat((obs[:, :1], torch.ones_like(obs[:, 1:])), dim=-1)
-        noisy = obs + std * torch.randn(obs.shape, generator=self.rng, device=self.device,
-                                        dtype=self.dtype)
+        noisy = obs + std * torch.randn(
+            obs.shape, generator=self.rng, device=self.device, dtype=self.dtype
+        )
         angles = wrap_angle(noisy[:, 1:3])
         return torch.cat((noisy[:, :1], angles, noisy[:, 3:]), dim=-1)
 
@@ -292,7 +293,9 @@ class DockingEnv(EnvBase):
                 f"action must have shape {expected} (num_envs, [v_d, w_d]), got {tuple(action.shape)}"
             )
         if not bool(torch.isfinite(action).all()):
-            raise ValueError("action contains NaN or inf; the docking env accepts finite actions only")
+            raise ValueError(
+                "action contains NaN or inf; the docking env accepts finite actions only"
+            )
         action = action.to(device=self.device, dtype=self.dtype)
         return torch.maximum(torch.minimum(action, self._action_high), self._action_low)
 
@@ -302,25 +305,41 @@ class DockingEnv(EnvBase):
 
         error = action - self._velocity[:, 0::2]
         tau, self._integral = pid_thrust(
-            error, self._integral, self._previous_error, self._kp, self._ki, self._kd,
-            cfg.dt, cfg.max_thrust,
+            error,
+            self._integral,
+            self._previous_error,
+            self._kp,
+            self._ki,
+            self._kd,
+            cfg.dt,
+            cfg.max_thrust,
         )
         self._previous_error = error
         tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
         self._velocity = velocity_update(
-            self._velocity, tau3, self._inertia, cfg.linear_damping, cfg.quadratic_damping,
-            cfg.max_acceleration, cfg.max_velocity, cfg.dt,
+            self._velocity,
+            tau3,
+            self._inertia,
+            cfg.linear_damping,
+            cfg.quadratic_damping,
+            cfg.max_acceleration,
+            cfg.max_velocity,
+            cfg.dt,
         )
         self._pose = pose_update(self._pose, self._velocity, self._current, cfg.dt)
         self._step_count = self._step_count + 1
 
         x, y, alpha = self._pose.unbind(-1)
         rho = torch.sqrt(x * x + y * y)
-        vx, vy = ground_velocity_body(alpha, self._velocity[:, 0], self._velocity[:, 1],
-                                      self._current)
+        vx, vy = ground_velocity_body(
+            alpha, self._velocity[:, 0], self._velocity[:, 1], self._current
+        )
         speed = torch.sqrt(vx * vx + vy * vy)
-        contact = (x >= cfg.dock_x[0]) & (x <= cfg.dock_x[1]) & (y >= cfg.dock_y[0]) & (
-            y <= cfg.dock_y[1]
+        contact = (
+            (x >= cfg.dock_x[0])
+            & (x <= cfg.dock_x[1])
+            & (y >= cfg.dock_y[0])
+            & (y <= cfg.dock_y[1])
         )
         score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
         score = torch.where(contact, score, torch.zeros_like(score))

@@ -52,9 +52,7 @@ def pid_thrust(
     return tau.clamp(-max_thrust, max_thrust), integral
 
 
-def hydrodynamic_damping(
-    velocity: torch.Tensor, linear: float, quadratic: float
-) -> torch.Tensor:
+def hydrodynamic_damping(velocity: torch.Tensor, linear: float, quadratic: float) -> torch.Tensor:
     """Damping force of eq. 36: ``d = K_dl * v + K_qdl * |v| * v``."""
     return linear * velocity + quadratic * velocity.abs() * velocity
 
