@@ -290,7 +290,8 @@ class DockingEnv(EnvBase):
         expected = (self.num_envs, ACTION_DIM)
         if tuple(action.shape) != expected:
             raise ValueError(
-                f"action must have shape {expected} (num_envs, [v_d, w_d]), got {tuple(action.shape)}"
+                f"action must have shape {expected} (num_envs, [v_d, w_d]), "
+                f"got {tuple(action.shape)}"
             )
         if not bool(torch.isfinite(action).all()):
             raise ValueError(
