@@ -22,7 +22,7 @@ from _machine import describe_machine  # noqa: E402
 
 def steps_per_second(env, seconds: float) -> float:
     td = env.reset()
-    for _ in range(10):
+    for _ in range(10):  # warm-up (and compilation, for compiled pipelines)
         td["action"] = env.action_spec.rand()
         _, td = env.step_and_maybe_reset(td)
     steps, start = 0, time.perf_counter()
@@ -43,6 +43,11 @@ def pipelines():
     except ImportError:
         return
     yield "compound (env + EKF + concat)", lambda n: make_env("compound", n, seed=0)
+    yield "env (noise), compile_step=True", lambda n: DockingEnv(n, seed=0, compile_step=True)
+    yield (
+        "compound, make_env(compile=True)",
+        lambda n: make_env("compound", n, seed=0, compile=True),
+    )
 
 
 def main(argv=None) -> None:

@@ -11,3 +11,7 @@ if "dockingrl/Docking-v0" not in gymnasium.registry:
     gymnasium.register(id="dockingrl/Docking-v0", entry_point="dockingrl.env.gym_env:DockingGymEnv")
 
 __all__ = ["DockingConfig", "DockingEnv", "contact_score", "__version__"]
+
+from dockingrl.scenarios import SCENARIOS, make_env  # noqa: E402
+
+__all__ += ["SCENARIOS", "make_env"]

@@ -9,12 +9,11 @@ from torchrl.envs import EnvBase
 
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.dynamics import (
-    ground_velocity_body,
+    noisy_observation,
     observation_from_state,
     pid_thrust,
     pose_update,
     velocity_update,
-    wrap_angle,
 )
 from dockingrl.env.reward import (
     contact_reward,
@@ -117,6 +116,10 @@ class DockingEnv(EnvBase):
         seed: seed of the env's own ``torch.Generator``; ``None`` draws one from torch's global
             generator. The same seed gives bit-identical rollouts on CPU.
         dtype: floating dtype of the simulation (float32 by default).
+        compile_step: run the simulation step through ``torch.compile`` (same numbers up to
+            rounding, faster for large batches; the first step pays the compilation). Not to be
+            confused with TorchRL's own ``compile=`` option, which compiles the whole
+            ``EnvBase.step``.
 
     Examples:
         >>> env = DockingEnv(num_envs=4, seed=0)
@@ -135,6 +138,7 @@ class DockingEnv(EnvBase):
         device: torch.device | str = "cpu",
         seed: int | None = None,
         dtype: torch.dtype = torch.float32,
+        compile_step: bool = False,
     ) -> None:
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -148,6 +152,9 @@ class DockingEnv(EnvBase):
         self.dtype = dtype
         self._make_specs()
         self._make_constants()
+        self._transition = self._make_transition()
+        if compile_step:
+            self._transition = torch.compile(self._transition, dynamic=False)
         n, dev = num_envs, self.device
         self._pose = torch.zeros(n, 3, device=dev, dtype=dtype)
         self._velocity = torch.zeros(n, 3, device=dev, dtype=dtype)
@@ -220,22 +227,12 @@ class DockingEnv(EnvBase):
         obs = observation_from_state(x, y, alpha, u, v, r, self._current)
         if not self.config.noise:
             return obs
-        std = self._noise_std * torch.cat((obs[:, :1], torch.ones_like(obs[:, 1:])), dim=-1)
-        noisy = obs + std * torch.randn(
-            obs.shape, generator=self.rng, device=self.device, dtype=self.dtype
-        )
-        angles = wrap_angle(noisy[:, 1:3])
-        return torch.cat((noisy[:, :1], angles, noisy[:, 3:]), dim=-1)
+        return noisy_observation(obs, self._sample_noise(), self._noise_std)
 
-    def _output(self, observation: torch.Tensor, **entries: torch.Tensor) -> TensorDict:
+    def _output(self, **entries: torch.Tensor) -> TensorDict:
+        # the env's state tensors are replaced, never modified in place: no copies needed
         return TensorDict(
-            {
-                "observation": observation,
-                "ocean_current": self._current.clone(),
-                "true_state": torch.cat((self._pose, self._velocity), dim=-1),
-                "step_count": self._step_count.clone(),
-                **entries,
-            },
+            {"ocean_current": self._current, "step_count": self._step_count, **entries},
             batch_size=self.batch_size,
             device=self.device,
         )
@@ -277,7 +274,8 @@ class DockingEnv(EnvBase):
         false = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         zero = torch.zeros(n, 1, dtype=dtype, device=dev)
         return self._output(
-            self._observe(),
+            observation=self._observe(),
+            true_state=torch.cat((self._pose, self._velocity), dim=-1),
             done=false,
             terminated=false.clone(),
             truncated=false.clone(),
@@ -301,65 +299,93 @@ class DockingEnv(EnvBase):
         return torch.maximum(torch.minimum(action, self._action_high), self._action_low)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        cfg = self.config
         action = self._validated_action(tensordict.get("action"))
-
-        error = action - self._velocity[:, 0::2]
-        tau, self._integral = pid_thrust(
-            error,
+        noise = self._sample_noise() if self.config.noise else None
+        (
+            self._pose,
+            self._velocity,
             self._integral,
             self._previous_error,
-            self._kp,
-            self._ki,
-            self._kd,
-            cfg.dt,
-            cfg.max_thrust,
-        )
-        self._previous_error = error
-        tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
-        self._velocity = velocity_update(
+            self._step_count,
+            out,
+        ) = self._transition(
+            self._pose,
             self._velocity,
-            tau3,
-            self._inertia,
-            cfg.linear_damping,
-            cfg.quadratic_damping,
-            cfg.max_acceleration,
-            cfg.max_velocity,
-            cfg.dt,
+            self._current,
+            self._integral,
+            self._previous_error,
+            self._step_count,
+            action,
+            noise,
         )
-        self._pose = pose_update(self._pose, self._velocity, self._current, cfg.dt)
-        self._step_count = self._step_count + 1
+        return self._output(**out)
 
-        x, y, alpha = self._pose.unbind(-1)
-        rho = torch.sqrt(x * x + y * y)
-        vx, vy = ground_velocity_body(
-            alpha, self._velocity[:, 0], self._velocity[:, 1], self._current
-        )
-        speed = torch.sqrt(vx * vx + vy * vy)
-        contact = (
-            (x >= cfg.dock_x[0])
-            & (x <= cfg.dock_x[1])
-            & (y >= cfg.dock_y[0])
-            & (y <= cfg.dock_y[1])
-        )
-        score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
-        score = torch.where(contact, score, torch.zeros_like(score))
-        reward = self.step_reward(rho, tau, speed, score)
+    def _sample_noise(self) -> torch.Tensor:
+        shape = (self.num_envs, OBSERVATION_DIM)
+        return torch.randn(shape, generator=self.rng, device=self.device, dtype=self.dtype)
 
-        terminated = contact.unsqueeze(-1)
-        truncated = (self._step_count >= cfg.max_steps) & ~terminated
+    def _make_transition(self):
+        """The whole simulation step as one pure tensor function (what ``compile=True``
+        hands to ``torch.compile``)."""
+        cfg = self.config
+        kp, ki, kd, inertia = self._kp, self._ki, self._kd, self._inertia
+        noise_std = self._noise_std
         speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
-        success = contact & (score > 0) & (speed <= speed_limit)
-        return self._output(
-            self._observe(),
-            reward=reward.unsqueeze(-1),
-            done=terminated | truncated,
-            terminated=terminated,
-            truncated=truncated,
-            success=success.unsqueeze(-1),
-            contact_score=score.unsqueeze(-1),
-            contact_speed=torch.where(contact, speed, torch.zeros_like(speed)).unsqueeze(-1),
-        )
+
+        def transition(
+            pose, velocity, current, integral, previous_error, step_count, action, noise
+        ):
+            error = action - velocity[:, 0::2]
+            tau, integral = pid_thrust(
+                error, integral, previous_error, kp, ki, kd, cfg.dt, cfg.max_thrust
+            )
+            tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
+            velocity = velocity_update(
+                velocity,
+                tau3,
+                inertia,
+                cfg.linear_damping,
+                cfg.quadratic_damping,
+                cfg.max_acceleration,
+                cfg.max_velocity,
+                cfg.dt,
+            )
+            pose = pose_update(pose, velocity, current, cfg.dt)
+            step_count = step_count + 1
+
+            x, y, alpha = pose.unbind(-1)
+            u, v, r = velocity.unbind(-1)
+            observation = observation_from_state(x, y, alpha, u, v, r, current)
+            rho, vx, vy = observation[:, 0], observation[:, 3], observation[:, 4]
+            speed = torch.sqrt(vx * vx + vy * vy)
+            contact = (
+                (x >= cfg.dock_x[0])
+                & (x <= cfg.dock_x[1])
+                & (y >= cfg.dock_y[0])
+                & (y <= cfg.dock_y[1])
+            )
+            score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
+            score = torch.where(contact, score, torch.zeros_like(score))
+            reward = self.step_reward(rho, tau, speed, score)
+            if noise is not None:
+                observation = noisy_observation(observation, noise, noise_std)
+            terminated = contact.unsqueeze(-1)
+            truncated = (step_count >= cfg.max_steps) & ~terminated
+            success = contact & (score > 0) & (speed <= speed_limit)
+            out = {
+                "observation": observation,
+                "true_state": torch.cat((pose, velocity), dim=-1),
+                "reward": reward.unsqueeze(-1),
+                "done": terminated | truncated,
+                "terminated": terminated,
+                "truncated": truncated,
+                "success": success.unsqueeze(-1),
+                "contact_score": score.unsqueeze(-1),
+                "contact_speed": torch.where(contact, speed, torch.zeros_like(speed)).unsqueeze(-1),
+            }
+            return pose, velocity, integral, error, step_count, out
+
+        return transition
 
     def step_reward(
         self, rho: torch.Tensor, tau: torch.Tensor, speed: torch.Tensor, score: torch.Tensor

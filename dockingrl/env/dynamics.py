@@ -102,15 +102,20 @@ def pose_update(
 
 
 def ground_velocity_body(
-    alpha: torch.Tensor, surge: torch.Tensor, sway: torch.Tensor, current: torch.Tensor
+    alpha: torch.Tensor,
+    surge: torch.Tensor,
+    sway: torch.Tensor,
+    current: torch.Tensor,
+    dim: int = -1,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Velocity over ground in the body frame, what a bottom-locked DVL measures (eq. 2).
 
-    ``(vx, vy) = (u, v) + R(alpha)^T oc``.
+    ``(vx, vy) = (u, v) + R(alpha)^T oc``; ``current`` holds ``(oc_x, oc_y)`` along ``dim``.
     """
     cos, sin = torch.cos(alpha), torch.sin(alpha)
-    vx = surge + current[..., 0] * cos + current[..., 1] * sin
-    vy = sway + current[..., 1] * cos - current[..., 0] * sin
+    oc_x, oc_y = current.unbind(dim)
+    vx = surge + oc_x * cos + oc_y * sin
+    vy = sway + oc_y * cos - oc_x * sin
     return vx, vy
 
 
@@ -123,6 +128,7 @@ def observation_from_state(
     yaw_rate: torch.Tensor,
     current: torch.Tensor,
     min_range: float = 0.0,
+    dim: int = -1,
 ) -> torch.Tensor:
     """The noise-free observation of eq. 2, which is also the EKF measurement model h (eq. 26).
 
@@ -133,16 +139,31 @@ def observation_from_state(
     Args:
         min_range: lower bound on rho inside the bearing's ``atan2``; 0 reproduces eq. 2
             exactly, the EKF passes a small positive value so that gradients stay finite.
+        current: ``(..., 2)`` ocean current, or ``(2, ...)`` when ``dim=0``.
+        dim: where the six entries are stacked (-1: ``(..., 6)``; 0: ``(6, ...)``).
 
     Returns:
-        ``(..., 6)``, angles wrapped to (-pi, pi].
+        The observation, angles wrapped to (-pi, pi].
     """
     rho = torch.sqrt(x * x + y * y)
     if min_range > 0:
         rho = rho.clamp_min(min_range)
     psi = wrap_angle(torch.atan2(-y, -x) - alpha)
-    vx, vy = ground_velocity_body(alpha, surge, sway, current)
-    return torch.stack((rho, psi, wrap_angle(alpha), vx, vy, yaw_rate), dim=-1)
+    vx, vy = ground_velocity_body(alpha, surge, sway, current, dim)
+    return torch.stack((rho, psi, wrap_angle(alpha), vx, vy, yaw_rate), dim=dim)
+
+
+def noisy_observation(
+    observation: torch.Tensor, standard_normal: torch.Tensor, noise_std: torch.Tensor
+) -> torch.Tensor:
+    """Add the Gaussian sensor noise of Table 2 to an observation of eq. 2, ``(..., 6)``.
+
+    ``noise_std`` holds the six sigmas, the first being a fraction of the true range; the
+    bearing and heading are wrapped back to (-pi, pi] afterwards.
+    """
+    scale = torch.cat((observation[..., :1], torch.ones_like(observation[..., 1:])), dim=-1)
+    noisy = observation + noise_std * scale * standard_normal
+    return torch.cat((noisy[..., :1], wrap_angle(noisy[..., 1:3]), noisy[..., 3:]), dim=-1)
 
 
 def pose_from_observation(observation: torch.Tensor) -> torch.Tensor:

@@ -53,8 +53,8 @@ class DockingGymEnv(gymnasium.Env):
     @staticmethod
     def _info(td) -> dict[str, Any]:
         info = {
-            "ocean_current": td["ocean_current"][0].numpy(),
-            "true_state": td["true_state"][0].numpy(),
+            "ocean_current": td["ocean_current"][0].numpy().copy(),
+            "true_state": td["true_state"][0].numpy().copy(),
         }
         for key in _INFO_KEYS:
             if key in td.keys():

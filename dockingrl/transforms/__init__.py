@@ -1,0 +1,33 @@
+"""The EKF (pure functions and a TorchRL transform) and the compound observation."""
+
+from dockingrl.transforms.ekf import (
+    ekf_predict,
+    ekf_step,
+    ekf_update,
+    measurement_covariance,
+    measurement_function,
+    measurement_jacobian,
+    motion_jacobian,
+    motion_model,
+)
+from dockingrl.transforms.filtering import (
+    CompoundObservation,
+    EKFTransform,
+    MeasurementNoise,
+    ProcessNoise,
+)
+
+__all__ = [
+    "CompoundObservation",
+    "EKFTransform",
+    "MeasurementNoise",
+    "ProcessNoise",
+    "ekf_predict",
+    "ekf_step",
+    "ekf_update",
+    "measurement_covariance",
+    "measurement_function",
+    "measurement_jacobian",
+    "motion_jacobian",
+    "motion_model",
+]

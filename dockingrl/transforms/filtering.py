@@ -1,0 +1,303 @@
+"""TorchRL transforms of the paper's learning approach (Sec. 3.5, Figure 3): the EKF that
+filters the noisy observation, and the compound observation that concatenates raw and filtered."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.data import Composite, Unbounded
+from torchrl.envs.transforms import Transform
+from torchrl.envs.transforms.utils import _get_reset
+
+from dockingrl.transforms.ekf import (
+    MEASUREMENT_DIM,
+    MEASUREMENT_NOISE_STD,
+    PROCESS_NOISE_STD,
+    STATE_DIM,
+    ekf_step,
+    initial_covariance,
+    measurement_function,
+    measurement_noise_std,
+    state_from_observation,
+)
+
+
+class ProcessNoise(nn.Module):
+    """Learnable process-noise covariance ``Q = L L^T + eps I`` (eq. 29), positive-definite by
+    construction: ``L`` is lower-triangular with a strictly positive (exponentiated) diagonal.
+    Initialised diagonal from Table 1 sigmas."""
+
+    def __init__(self, std: Sequence[float] = PROCESS_NOISE_STD, eps: float = 1e-10) -> None:
+        super().__init__()
+        std = torch.as_tensor(std, dtype=torch.float64)
+        if std.shape != (STATE_DIM,) or not bool((std > 0).all()):
+            raise ValueError(f"process noise needs {STATE_DIM} positive sigmas, got {std}")
+        self.log_diag = nn.Parameter(std.log().float())
+        self.off_diag = nn.Parameter(torch.zeros(STATE_DIM * (STATE_DIM - 1) // 2))
+        self.eps = eps
+
+    def cholesky_factor(self) -> torch.Tensor:
+        rows, cols = torch.tril_indices(STATE_DIM, STATE_DIM, offset=-1)
+        L = torch.diag_embed(self.log_diag.exp())
+        return L.index_put((rows.to(L.device), cols.to(L.device)), self.off_diag)
+
+    def forward(self) -> torch.Tensor:
+        L = self.cholesky_factor()
+        eye = torch.eye(STATE_DIM, dtype=L.dtype, device=L.device)
+        return L @ L.T + self.eps * eye
+
+
+class MeasurementNoise(nn.Module):
+    """Learnable diagonal measurement-noise model (eq. 31): log-sigmas of Table 2, the range
+    sigma being relative to the measured range. ``forward(rho)`` returns the ``(..., 6)``
+    variances (a diagonal ``R``), strictly positive by construction."""
+
+    def __init__(self, std: Sequence[float] = MEASUREMENT_NOISE_STD, eps: float = 1e-12) -> None:
+        super().__init__()
+        std = torch.as_tensor(std, dtype=torch.float64)
+        if std.shape != (MEASUREMENT_DIM,) or not bool((std > 0).all()):
+            raise ValueError(
+                f"measurement noise needs {MEASUREMENT_DIM} positive sigmas, got {std}"
+            )
+        self.log_std = nn.Parameter(std.log().float())
+        self.eps = eps
+
+    def std(self) -> torch.Tensor:
+        return self.log_std.exp()
+
+    def forward(self, measured_range: torch.Tensor) -> torch.Tensor:
+        sigma = measurement_noise_std(measured_range, self.std().to(measured_range.dtype))
+        return sigma**2 + self.eps
+
+
+class EKFTransform(Transform):
+    """Filters the noisy observation with the EKF of Sec. 3.5 (eqs. 22-34).
+
+    Reads the raw ``observation`` the env produced, the ``action`` that produced it and the
+    ``ocean_current``; writes ``filtered_observation`` = ``h(x_hat)`` (eq. 26), the same six
+    numbers in the same layout as the raw observation. Each env's estimate lives in the
+    tensordict as declared state, ``ekf_mean`` ``(5,)`` and ``ekf_cov`` ``(5, 5)``; on reset an
+    env's filter starts from its first observation (eq. 26 inverted, ``P0`` from ``R``), and only
+    the envs in the ``"_reset"`` mask are re-initialised.
+
+    ``Q`` (:class:`ProcessNoise`) and ``R`` (:class:`MeasurementNoise`) are parameters with a
+    positive-definite parameterisation, Table 1 and Table 2 by default, frozen unless
+    ``learnable=True``. Gradients flow from the filtered outputs of a rollout back to them.
+
+    Keyword Args:
+        dt: filter step (s); the env's step.
+        k_v, k_w: rates of the first-order velocity model of eq. 24 (1/s).
+        process_noise_std: Table 1 sigmas of ``[x, y, alpha, nu, w]``.
+        measurement_noise_std: Table 2 sigmas, the first relative to the measured range.
+        learnable: whether ``Q`` and ``R`` require grad.
+        action_low, action_high: bounds the env clips the action to; the filter predicts with
+            the clipped action that was really applied (``None``: as given).
+        observation_key, action_key, current_key, out_key: tensordict keys.
+        compile: run the filter step through ``torch.compile`` (faster for large batches;
+            the first step pays the compilation).
+
+    Examples:
+        >>> from torchrl.envs import TransformedEnv
+        >>> from dockingrl.env import DockingEnv
+        >>> env = TransformedEnv(DockingEnv(8, seed=0), EKFTransform())
+        >>> env.rollout(5)["next", "filtered_observation"].shape
+        torch.Size([8, 5, 6])
+    """
+
+    def __init__(
+        self,
+        *,
+        dt: float = 0.2,
+        k_v: float = 2.5,
+        k_w: float = 2.5,
+        process_noise_std: Sequence[float] = PROCESS_NOISE_STD,
+        measurement_noise_std: Sequence[float] = MEASUREMENT_NOISE_STD,
+        learnable: bool = False,
+        action_low: Sequence[float] | None = None,
+        action_high: Sequence[float] | None = None,
+        observation_key: str = "observation",
+        action_key: str = "action",
+        current_key: str = "ocean_current",
+        out_key: str = "filtered_observation",
+        compile: bool = False,
+    ) -> None:
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive number, got {dt}")
+        super().__init__(in_keys=[observation_key, action_key, current_key], out_keys=[out_key])
+        self.observation_key, self.action_key, self.current_key = (
+            observation_key,
+            action_key,
+            current_key,
+        )
+        self.out_key = out_key
+        self.mean_key, self.cov_key = "ekf_mean", "ekf_cov"
+        self.dt, self.k_v, self.k_w = dt, k_v, k_w
+        self.process_noise = ProcessNoise(process_noise_std)
+        self.measurement_noise = MeasurementNoise(measurement_noise_std)
+        self.set_learnable(learnable)
+        bounds = None
+        if (action_low is None) != (action_high is None):
+            raise ValueError("give both action_low and action_high, or neither")
+        if action_low is not None:
+            bounds = torch.tensor([list(action_low), list(action_high)], dtype=torch.float32)
+        self.register_buffer("action_bounds", bounds)
+        if compile:
+            self._filter_step = torch.compile(self._filter_step, dynamic=False)
+
+    # -- parameters -----------------------------------------------------------------------
+    def set_learnable(self, learnable: bool = True) -> EKFTransform:
+        """Freeze or unfreeze ``Q`` and ``R``."""
+        for p in self.noise_parameters():
+            p.requires_grad_(learnable)
+        return self
+
+    def noise_parameters(self) -> list[nn.Parameter]:
+        return [*self.process_noise.parameters(), *self.measurement_noise.parameters()]
+
+    def save_filter_params(self, path: str | Path) -> None:
+        """Write ``Q`` and ``R``'s parameters to ``path`` (atomically)."""
+        from dockingrl.transforms.params import save_filter_params
+
+        save_filter_params(self, path)
+
+    def load_filter_params(self, path: str | Path) -> EKFTransform:
+        """Load ``Q`` and ``R``'s parameters written by :meth:`save_filter_params`."""
+        from dockingrl.transforms.params import load_filter_params
+
+        load_filter_params(self, path)
+        return self
+
+    # -- filtering ------------------------------------------------------------------------
+    def _applied_action(self, action: torch.Tensor) -> torch.Tensor:
+        if self.action_bounds is None:
+            return action
+        low, high = self.action_bounds.to(action)
+        return torch.maximum(torch.minimum(action, high), low)
+
+    def _filter_step(self, mean, cov, action, z, current):
+        """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
+        compiles, noise models included)."""
+        action = self._applied_action(action).to(z.dtype)
+        Q = self.process_noise().to(z.dtype)
+        R = self.measurement_noise(z[..., 0])
+        return ekf_step(mean, cov, action, z, current, Q, R, self.dt, k_v=self.k_v, k_w=self.k_w)
+
+    def _initial_state(self, observation, current):
+        mean = state_from_observation(observation, current)
+        R = torch.diag_embed(self.measurement_noise(observation[..., 0]))
+        return mean, initial_covariance(observation, current, R.to(observation.dtype))
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        mean, cov, filtered = self._filter_step(
+            tensordict.get(self.mean_key),
+            tensordict.get(self.cov_key),
+            tensordict.get(self.action_key),
+            next_tensordict.get(self.observation_key),
+            next_tensordict.get(self.current_key),
+        )
+        next_tensordict.set(self.mean_key, mean)
+        next_tensordict.set(self.cov_key, cov)
+        next_tensordict.set(self.out_key, filtered)
+        return next_tensordict
+
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        z = tensordict_reset.get(self.observation_key)
+        current = tensordict_reset.get(self.current_key)
+        mean, cov = self._initial_state(z, current)
+        previous_mean = tensordict.get(self.mean_key, None)
+        if previous_mean is not None:
+            reset = _get_reset(self.parent.reset_keys[0], tensordict)
+            reset = reset.reshape(*reset.shape[: z.dim() - 1], 1)
+            mean = torch.where(reset, mean, previous_mean)
+            cov = torch.where(reset.unsqueeze(-1), cov, tensordict.get(self.cov_key))
+        tensordict_reset.set(self.mean_key, mean)
+        tensordict_reset.set(self.cov_key, cov)
+        tensordict_reset.set(self.out_key, measurement_function(mean, current))
+        return tensordict_reset
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        raise RuntimeError(
+            "EKFTransform is stateful and needs the action of each step: use it inside a "
+            "TransformedEnv, or call dockingrl.transforms.ekf.ekf_step on recorded data."
+        )
+
+    forward = _call
+
+    # -- specs ----------------------------------------------------------------------------
+    def _state_specs(self, like) -> dict:
+        shape, device, dtype = like.shape[:-1], like.device, like.dtype
+        return {
+            self.mean_key: Unbounded(shape=(*shape, STATE_DIM), device=device, dtype=dtype),
+            self.cov_key: Unbounded(
+                shape=(*shape, STATE_DIM, STATE_DIM), device=device, dtype=dtype
+            ),
+        }
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        raw = observation_spec[self.observation_key]
+        if raw.shape[-1] != MEASUREMENT_DIM:
+            raise ValueError(
+                f"EKFTransform expects a {MEASUREMENT_DIM}-vector '{self.observation_key}' "
+                f"(eq. 2), got shape {tuple(raw.shape)}"
+            )
+        observation_spec[self.out_key] = raw.clone()
+        observation_spec.update(self._state_specs(raw))
+        return observation_spec
+
+    def transform_input_spec(self, input_spec: Composite) -> Composite:
+        raw = self.parent.full_observation_spec[self.observation_key] if self.parent else None
+        if raw is None:
+            return input_spec
+        state_spec = input_spec["full_state_spec"]
+        if state_spec is None:
+            state_spec = Composite(shape=input_spec.shape, device=input_spec.device)
+        state_spec.update(self._state_specs(raw))
+        input_spec["full_state_spec"] = state_spec
+        return input_spec
+
+
+class CompoundObservation(Transform):
+    """Concatenates observation entries in the given, fixed order (no sorting) into one key.
+
+    The paper's compound observation (Sec. 3.5, Figure 3) is
+    ``CompoundObservation(["observation", "filtered_observation"])``: raw first, then
+    filtered, 12 numbers, written to ``observation`` (which the policy reads). With a single
+    key it renames, as in the ``filtered`` scenario.
+
+    Args:
+        in_keys: entries to concatenate along the last dimension, in this order.
+        out_key: where to write the result (default ``"observation"``, overwritten).
+    """
+
+    def __init__(self, in_keys: Sequence[str], out_key: str = "observation") -> None:
+        if isinstance(in_keys, str) or len(in_keys) == 0:
+            raise ValueError("in_keys must be a non-empty sequence of keys")
+        super().__init__(in_keys=list(in_keys), out_keys=[out_key])
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        values = [next_tensordict.get(key) for key in self.in_keys]
+        next_tensordict.set(self.out_keys[0], torch.cat(values, dim=-1))
+        return next_tensordict
+
+    forward = _call
+
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        specs = [observation_spec[key] for key in self.in_keys]
+        size = sum(spec.shape[-1] for spec in specs)
+        first = specs[0]
+        observation_spec[self.out_keys[0]] = Unbounded(
+            shape=(*first.shape[:-1], size), device=first.device, dtype=first.dtype
+        )
+        return observation_spec

@@ -1,0 +1,41 @@
+"""Saving and loading the EKF's noise parameters (``Q`` and ``R``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from dockingrl.io import atomic_write
+
+FORMAT = "dockingrl.filter_params/1"
+
+
+def save_filter_params(transform, path: str | Path, **metadata) -> Path:
+    """Write ``transform``'s ``Q`` and ``R`` parameters (and the matrices, for reading) to
+    ``path`` atomically. ``metadata`` (objective, steps, ...) is stored alongside."""
+    with torch.no_grad():
+        payload = {
+            "format": FORMAT,
+            "process_noise": {
+                k: v.detach().cpu() for k, v in transform.process_noise.state_dict().items()
+            },
+            "measurement_noise": {
+                k: v.detach().cpu() for k, v in transform.measurement_noise.state_dict().items()
+            },
+            "Q": transform.process_noise().detach().cpu(),
+            "R_std": transform.measurement_noise.std().detach().cpu(),
+            "metadata": metadata,
+        }
+    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def load_filter_params(transform, path: str | Path) -> dict:
+    """Load parameters written by :func:`save_filter_params` into ``transform``; returns the
+    stored payload."""
+    payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
+    transform.process_noise.load_state_dict(payload["process_noise"])
+    transform.measurement_noise.load_state_dict(payload["measurement_noise"])
+    return payload
