@@ -62,11 +62,6 @@ def _matrix_from_last(m: torch.Tensor, batch_shape: torch.Size) -> torch.Tensor:
     return m.permute(2, 0, 1).contiguous().reshape(*batch_shape, *m.shape[:2])
 
 
-def _matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Batch-last matrix product ``(r, k, N) @ (k, c, N) -> (r, c, N)``."""
-    return (a.unsqueeze(2) * b.unsqueeze(0)).sum(1)
-
-
 def _symmetric(matrix: torch.Tensor, batch_last: bool = False) -> torch.Tensor:
     dims = (0, 1) if batch_last else (-1, -2)
     return 0.5 * (matrix + matrix.transpose(*dims))
@@ -321,6 +316,8 @@ def ekf_update(
     z: torch.Tensor,
     current: torch.Tensor,
     R: torch.Tensor,
+    *,
+    diagonal: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Update step, eqs. 30-34, with the covariance in Joseph form.
 
@@ -339,8 +336,8 @@ def ekf_update(
         cov: ``(..., 5, 5)`` predicted covariance.
         z: ``(..., 6)`` measurement (the raw observation).
         current: ``(..., 2)`` ocean current.
-        R: measurement covariance, either ``(..., 6, 6)`` or, when diagonal, its ``(..., 6)``
-            variances (cheaper); broadcastable against the batch.
+        R: ``(..., 6, 6)`` measurement covariance, broadcastable against the batch.
+        diagonal: ``R`` is diagonal and given as its ``(..., 6)`` variances (cheaper).
 
     Returns:
         The corrected ``(mean, cov)``, ``cov`` symmetric.
@@ -351,17 +348,23 @@ def ekf_update(
         _matrix_to_last(cov, batch),
         _vector_to_last(z),
         _vector_to_last(current),
-        *_noise_to_last(R, batch),
+        *_noise_to_last(R, batch, diagonal),
     )
     return _vector_from_last(m, batch), _matrix_from_last(P, batch)
 
 
-def _noise_to_last(R: torch.Tensor, batch: torch.Size) -> tuple[torch.Tensor, bool]:
-    """Batch-last Cholesky factor of a full ``R`` ``(6, 6, N)``, or sigmas ``(6, N)`` of a
+def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[torch.Tensor, bool]:
+    """Batch-last Cholesky factor ``(6, 6, N)`` of a full ``R``, or sigmas ``(6, N)`` of a
     diagonal one given as variances; and whether ``R`` was full."""
-    if R.dim() >= 2 and R.shape[-2:] == (MEASUREMENT_DIM, MEASUREMENT_DIM):
-        return _matrix_to_last(torch.linalg.cholesky(R), batch), True
-    return _vector_to_last(torch.sqrt(R.expand(*batch, MEASUREMENT_DIM))), False
+    if diagonal:
+        if R.shape[-1] != MEASUREMENT_DIM:
+            raise ValueError(f"diagonal R must be (..., {MEASUREMENT_DIM}), got {tuple(R.shape)}")
+        return _vector_to_last(torch.sqrt(R.expand(*batch, MEASUREMENT_DIM))), False
+    if R.dim() < 2 or R.shape[-2:] != (MEASUREMENT_DIM, MEASUREMENT_DIM):
+        raise ValueError(
+            f"R must be (..., {MEASUREMENT_DIM}, {MEASUREMENT_DIM}), got {tuple(R.shape)}"
+        )
+    return _matrix_to_last(torch.linalg.cholesky(R), batch), True
 
 
 def _update(m, P, z, current, noise, full):
@@ -402,10 +405,11 @@ def ekf_step(
     *,
     k_v: float = 2.5,
     k_w: float = 2.5,
+    diagonal: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`ekf_predict` then :func:`ekf_update` in one pass (no layout round trip between
-    them). ``R`` as in :func:`ekf_update`. Returns ``(mean, cov, h(mean))``, the last being the
-    filtered observation (eq. 26 of the estimate)."""
+    them); ``R`` and ``diagonal`` as in :func:`ekf_update`. Returns ``(mean, cov, h(mean))``,
+    the last being the filtered observation (eq. 26 of the estimate)."""
     batch = mean.shape[:-1]
     cur = _vector_to_last(current)
     m, P = _predict(
@@ -418,7 +422,7 @@ def ekf_step(
         k_v,
         k_w,
     )
-    m, P = _update(m, P, _vector_to_last(z), cur, *_noise_to_last(R, batch))
+    m, P = _update(m, P, _vector_to_last(z), cur, *_noise_to_last(R, batch, diagonal))
     filtered = _measurement_function(m, cur, dim=0)
     return (
         _vector_from_last(m, batch),

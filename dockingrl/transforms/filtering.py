@@ -185,7 +185,19 @@ class EKFTransform(Transform):
         action = self._applied_action(action).to(z.dtype)
         Q = self.process_noise().to(z.dtype)
         R = self.measurement_noise(z[..., 0])
-        return ekf_step(mean, cov, action, z, current, Q, R, self.dt, k_v=self.k_v, k_w=self.k_w)
+        return ekf_step(
+            mean,
+            cov,
+            action,
+            z,
+            current,
+            Q,
+            R,
+            self.dt,
+            k_v=self.k_v,
+            k_w=self.k_w,
+            diagonal=True,
+        )
 
     def _initial_state(self, observation, current):
         mean = state_from_observation(observation, current)
