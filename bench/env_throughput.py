@@ -10,14 +10,11 @@ once that pipeline exists) shows the filter's cost relative to the bare env.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import describe_machine  # noqa: E402
+from dockingrl.evaluation import describe_machine
 
 
 def steps_per_second(env, seconds: float) -> float:

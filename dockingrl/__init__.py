@@ -15,3 +15,7 @@ __all__ = ["DockingConfig", "DockingEnv", "contact_score", "__version__"]
 from dockingrl.scenarios import SCENARIOS, make_env  # noqa: E402
 
 __all__ += ["SCENARIOS", "make_env"]
+
+from dockingrl.evaluation import evaluate  # noqa: E402
+
+__all__ += ["evaluate"]

@@ -180,6 +180,7 @@ def test_hand_built_pipeline_equals_make_env_and_stacks():
     )
     check_env_specs(make_env("compound", 8, seed=6, transforms=[norm.clone()]))
     stacked = make_env("compound", 8, seed=6, transforms=[norm])
+
     def on_halved(observation):
         return bearing_action(observation / 2.0)
 

@@ -162,6 +162,8 @@ class DockingEnv(EnvBase):
         self._integral = torch.zeros(n, 2, device=dev, dtype=dtype)
         self._previous_error = torch.zeros(n, 2, device=dev, dtype=dtype)
         self._step_count = torch.zeros(n, 1, device=dev, dtype=torch.int64)
+        self._pinned_pose: torch.Tensor | None = None
+        self._pinned_current: torch.Tensor | None = None
         if seed is None:
             seed = int(torch.randint(0, 2**62, (1,)).item())
         self.set_seed(seed)
@@ -219,6 +221,36 @@ class DockingEnv(EnvBase):
         self.rng = torch.Generator(device=self.device)
         self.rng.manual_seed(int(seed))
 
+    def set_initial_state(
+        self, pose: torch.Tensor | None = None, ocean_current: torch.Tensor | None = None
+    ) -> None:
+        """Pin what the following resets start from, instead of sampling it (Sec. 4.1).
+
+        Args:
+            pose: ``(num_envs, 3)`` ``(x, y, alpha)`` start poses, or ``None`` to sample again.
+            ocean_current: ``(num_envs, 2)`` currents, or ``None`` to sample again.
+
+        Used for the success map over currents (Figure 9) and for chosen trajectories
+        (Figure 10). The random draws still happen, so the env's random stream is the same
+        whether or not a state is pinned.
+        """
+
+        def check(value, size, name):
+            if value is None:
+                return None
+            value = torch.as_tensor(value, dtype=self.dtype, device=self.device)
+            value = value.expand(self.num_envs, size) if value.dim() == 1 else value
+            if value.shape != (self.num_envs, size):
+                raise ValueError(
+                    f"{name} must be ({self.num_envs}, {size}), got {tuple(value.shape)}"
+                )
+            if not bool(torch.isfinite(value).all()):
+                raise ValueError(f"{name} must be finite")
+            return value.clone()
+
+        self._pinned_pose = check(pose, 3, "pose")
+        self._pinned_current = check(ocean_current, 2, "ocean_current")
+
     # -- helpers -------------------------------------------------------------------------
     def _observe(self) -> torch.Tensor:
         """Eq. 2 on the true state, plus the Gaussian noise of Table 2 when enabled."""
@@ -255,6 +287,10 @@ class DockingEnv(EnvBase):
             ),
             dim=-1,
         )
+        if self._pinned_pose is not None:
+            pose = self._pinned_pose
+        if self._pinned_current is not None:
+            current = self._pinned_current
         mask = None if tensordict is None else tensordict.get("_reset", None)
         if mask is None:
             self._pose = pose

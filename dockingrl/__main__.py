@@ -1,0 +1,3 @@
+from dockingrl.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,229 @@
+"""The ``dockingrl`` command line: ``dockingrl eval``, ``dockingrl filter-figure`` (and the
+training commands, see ``dockingrl --help``)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dockingrl.env import DockingConfig
+from dockingrl.scenarios import SCENARIOS
+
+#: Figure 10's currents (caption) with a start on each side of the axis: the first of each pair
+#: is pushed towards the axis by the lateral current, the second has to work against it.
+FIGURE_10_CASES = [
+    {"start": (-28.0, 6.0, 0.0), "ocean_current": (0.05, -0.1)},
+    {"start": (-28.0, -6.0, 0.0), "ocean_current": (0.05, -0.1)},
+    {"start": (-28.0, 6.0, 0.0), "ocean_current": (-0.15, -0.3)},
+    {"start": (-28.0, -6.0, 0.0), "ocean_current": (-0.15, -0.3)},
+    {"start": (-28.0, 6.0, 0.0), "ocean_current": (0.3, -0.3)},
+    {"start": (-28.0, -6.0, 0.0), "ocean_current": (0.3, -0.3)},
+]
+
+
+_ARGV: list[str] = []
+
+
+def command_line() -> str:
+    """The command being run, as a user would type it."""
+    return "dockingrl " + " ".join(shlex.quote(a) for a in _ARGV)
+
+
+def footer_text(extra: str = "") -> str:
+    from dockingrl.evaluation import describe_machine
+
+    text = f"{command_line()}  |  {describe_machine()}"
+    return f"{text}  |  {extra}" if extra else text
+
+
+def load_policy(spec: str, *, use_filter: bool = False):
+    """``managed_surge`` or the path of a policy saved by training. Returns
+    ``(policy, name, scenario or None)``."""
+    if spec == "managed_surge":
+        from dockingrl.agents.managed_surge import ManagedSurgePolicy
+
+        return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None
+    path = Path(spec)
+    if not path.exists():
+        raise SystemExit(f"error: --policy {spec!r} is neither 'managed_surge' nor a file")
+    from dockingrl.agents.saving import load_policy as load_saved
+
+    policy, meta = load_saved(path)
+    return policy, meta.get("algo", "agent"), meta.get("scenario")
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
+    from dockingrl.io import write_json
+    from dockingrl.plots import plot_success_map, plot_trajectories
+
+    torch.set_num_threads(args.threads)
+    policy, name, trained_scenario = load_policy(args.policy, use_filter=args.use_filter)
+    scenario = args.scenario or trained_scenario or "noise"
+    config = DockingConfig(contact_speed_tolerance=args.speed_tolerance)
+    env_kwargs = {"config": config}
+    if args.filter_params:
+        env_kwargs["filter_params"] = args.filter_params
+    out = Path(args.out) if args.out else None
+    start = time.perf_counter()
+    metrics = evaluate(
+        policy, scenario, args.episodes, seed=args.seed, progress=not args.quiet, **env_kwargs
+    )
+    metrics.update(policy=args.policy, command=command_line())
+    print(table_row(name, scenario, metrics))
+    print(
+        f"failures: {metrics['failures']}; contact speed "
+        f"{metrics['contact_speed']['mean']:.3f} +- {metrics['contact_speed']['std']:.3f} m/s; "
+        f"time over successes {metrics['time_success_s']['mean']}"
+    )
+    if out is not None:
+        write_json(out / "eval.json", metrics)
+    if args.map:
+        result = success_map(
+            policy,
+            scenario,
+            trials=args.map_trials,
+            seed=args.seed,
+            progress=not args.quiet,
+            **env_kwargs,
+        )
+        result.update(policy=args.policy, command=command_line())
+        print(f"success map: mean {result['mean_success_rate']:.1f} %")
+        if out is not None:
+            write_json(out / "success_map.json", result)
+            plot_success_map(
+                result,
+                out / "success_map.png",
+                title=f"{name}, {scenario}: success (%) per current",
+                footer=footer_text(),
+            )
+    if args.trajectories:
+        cases = trajectories(policy, FIGURE_10_CASES, scenario, seed=args.seed, **env_kwargs)
+        if out is not None:
+            write_json(out / "trajectories.json", {"command": command_line(), "cases": cases})
+            plot_trajectories(cases, out / "trajectories.png", footer=footer_text())
+    wall = time.perf_counter() - start
+    print(f"wall-clock {wall:.1f} s" + (f"; results in {out}/" if out else ""))
+    return 0
+
+
+def cmd_filter_figure(args: argparse.Namespace) -> int:
+    """One episode of the managed surge controller (on the EKF estimate) in the compound
+    scenario: raw, filtered and true rho, psi, alpha (Figure 5)."""
+    from dockingrl.agents.managed_surge import ManagedSurgePolicy
+    from dockingrl.env import observation_from_state
+    from dockingrl.evaluation import base_env
+    from dockingrl.io import write_json
+    from dockingrl.plots import plot_filter_episode
+    from dockingrl.scenarios import make_env
+
+    env = make_env("compound", 1, seed=args.seed)
+    base_env(env).set_initial_state(
+        pose=torch.tensor(args.start), ocean_current=torch.tensor(args.current)
+    )
+    policy = ManagedSurgePolicy(use_filter=True)
+    with torch.no_grad():
+        td = env.rollout(600, policy)
+    nxt = td["next"][0]
+    x, y, alpha, u, v, r = nxt["true_state"].unbind(-1)
+    true = observation_from_state(x, y, alpha, u, v, r, nxt["ocean_current"]).numpy()
+    raw = nxt["observation"][:, :6].numpy()
+    filtered = nxt["filtered_observation"].numpy()
+    seconds = nxt["step_count"].squeeze(-1).numpy() * base_env(env).config.dt
+
+    def rmse(a):
+        e = a - true
+        e[:, 1:3] = (e[:, 1:3] + np.pi) % (2 * np.pi) - np.pi
+        return np.sqrt((e**2).mean(0))[:3].tolist()
+
+    out = Path(args.out)
+    plot_filter_episode(
+        seconds, raw, filtered, true, out / "filter_episode.png", footer=footer_text()
+    )
+    write_json(
+        out / "filter_episode.json",
+        {
+            "command": command_line(),
+            "start": args.start,
+            "ocean_current": args.current,
+            "steps": len(seconds),
+            "rmse_raw": dict(zip(["rho", "psi", "alpha"], rmse(raw), strict=True)),
+            "rmse_filtered": dict(zip(["rho", "psi", "alpha"], rmse(filtered), strict=True)),
+        },
+    )
+    print(f"wrote {out}/filter_episode.png ({len(seconds)} steps)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dockingrl", description="AUV docking with deep RL: evaluation and training."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    ev = sub.add_parser(
+        "eval",
+        help="evaluate the managed surge controller or a saved agent (Tables 6-7, Figs. 9-10)",
+        description="Evaluate a policy on N episodes run as one batch; prints a Table 6/7 row "
+        "beside the paper's and writes eval.json (+ success_map, trajectories) to --out.",
+    )
+    ev.add_argument(
+        "--policy",
+        default="managed_surge",
+        help="'managed_surge' or the path of a saved agent (policy.pt)",
+    )
+    ev.add_argument(
+        "--scenario",
+        choices=list(SCENARIOS),
+        default=None,
+        help="default: the agent's training scenario, or 'noise' for the controller",
+    )
+    ev.add_argument("--episodes", type=int, default=500, help="number of episodes (paper: 500)")
+    ev.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    ev.add_argument("--out", default=None, help="results folder (JSON + PNG)")
+    ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
+    ev.add_argument("--map-trials", type=int, default=10, help="episodes per map cell")
+    ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")
+    ev.add_argument(
+        "--use-filter",
+        action="store_true",
+        help="managed surge reads the EKF estimate (filtered/compound scenarios)",
+    )
+    ev.add_argument(
+        "--speed-tolerance",
+        type=float,
+        default=0.0,
+        help="m/s added to the 0.3 m/s contact-speed limit of the success test",
+    )
+    ev.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
+    ev.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    ev.set_defaults(func=cmd_eval)
+
+    ff = sub.add_parser("filter-figure", help="raw vs filtered vs true observation (Figure 5)")
+    ff.add_argument("--out", default="results/filter", help="results folder")
+    ff.add_argument("--seed", type=int, default=0)
+    ff.add_argument(
+        "--start", type=float, nargs=3, default=[-28.0, 5.0, 0.3], metavar=("X", "Y", "ALPHA")
+    )
+    ff.add_argument("--current", type=float, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y"))
+    ff.set_defaults(func=cmd_filter_figure)
+
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    _ARGV[:] = argv
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,112 @@
+import json
+
+import pytest
+import torch
+from tensordict.nn import TensorDictModule
+
+from dockingrl import make_env
+from dockingrl.agents.managed_surge import ManagedSurgePolicy
+from dockingrl.cli import main as cli_main
+from dockingrl.env import DockingConfig
+from dockingrl.evaluation import base_env, evaluate, success_map, trajectories
+from dockingrl.plots import plot_success_map, plot_trajectories
+
+
+def constant_policy(surge, yaw_rate=0.0):
+    def act(observation):
+        action = torch.tensor([surge, yaw_rate], dtype=observation.dtype)
+        return action.expand(*observation.shape[:-1], 2)
+
+    return TensorDictModule(act, in_keys=["observation"], out_keys=["action"])
+
+
+def test_a_policy_that_never_moves_always_times_out():
+    # a pushing current could carry a still AUV into the funnel: no current here
+    config = DockingConfig(ocean_current_range=(-1e-6, 1e-6))
+    m = evaluate(constant_policy(0.0), "noise", 16, seed=0, config=config)
+    assert m["success_rate"] == 0.0
+    assert m["failures"] == {"timeout": 16, "missed_funnel": 0, "too_fast": 0}
+    assert m["time_all_s"]["mean"] == pytest.approx(120.0)
+    assert m["time_s"]["n"] == 0 and m["time_s"]["mean"] is None
+    # 600 steps of r_dist only (no thrust at rest), rho within [25, 31.8] m
+    assert -600 * 31.8 / 30 < m["total_reward"]["mean"] < -600 * 25 / 30
+
+
+def test_forced_contacts_are_counted_with_their_score_and_speed():
+    env = make_env("no_noise", 3, seed=0)
+    base_env(env).set_initial_state(
+        pose=torch.tensor([[-0.9, 0.0, 0.0], [-0.9, 0.0, 0.5], [-3.0, 0.0, 0.0]]),
+        ocean_current=torch.tensor([[0.2, 0.0], [0.2, 0.0], [0.2, 0.0]]),
+    )
+
+    # envs 0 and 1 drift in with the current at 0.2 m/s; env 2 drives in at 0.8 + 0.2 m/s
+    class Policy(torch.nn.Module):
+        def forward(self, td):
+            action = torch.tensor([[0.0, 0.0], [0.0, 0.0], [0.8, 0.0]])
+            return td.set("action", action)
+
+    m = evaluate(Policy(), env, seed=0)
+    assert m["episodes"] == 3
+    assert m["success_rate"] == pytest.approx(100 / 3)
+    assert m["failures"] == {"timeout": 0, "missed_funnel": 1, "too_fast": 1}
+    # env 0: g = 1; env 1: e_alpha = 0.5 against sign(y) = 0 -> w_2: g = 1 - 3.05 * 0.5
+    # env 2: straight in, g = 1
+    scores = sorted([1.0, 1 - 3.05 * 0.5, 1.0])
+    assert m["contact_score"]["n"] == 3
+    assert m["contact_score"]["mean"] == pytest.approx(sum(scores) / 3, abs=1e-5)
+    assert m["time_s"]["n"] == 3 and m["time_success_s"]["n"] == 1
+    # drifting at 0.04 m a step, x = -0.9 -> -0.86 -> -0.82 -> -0.78: contact at the 3rd step
+    assert m["time_success_s"]["mean"] == pytest.approx(0.2 * 3)
+    assert m["contact_speed"]["mean"] > (0.2 + 0.2 + 0.3) / 3
+
+
+def test_success_map_and_plots(tmp_path):
+    result = success_map(ManagedSurgePolicy(), "noise", cells=3, trials=2, seed=1)
+    rate = torch.tensor(result["success_rate"])
+    assert rate.shape == (3, 3) and ((rate >= 0) & (rate <= 100)).all()
+    assert result["oc_x"] == pytest.approx([-0.3, 0.0, 0.3])
+    png = plot_success_map(result, tmp_path / "map.png")
+    assert png.stat().st_size > 10_000
+    cases = trajectories(
+        ManagedSurgePolicy(),
+        [{"start": (-26.0, 3.0, 0.0), "ocean_current": (0.0, 0.0)}],
+        "noise",
+    )
+    assert len(cases[0]["path"]) == round(cases[0]["time_s"] / 0.2) + 1
+    assert cases[0]["path"][0] == pytest.approx([-26.0, 3.0, 0.0], abs=1e-6)
+    png = plot_trajectories(cases, tmp_path / "traj.png")
+    assert png.stat().st_size > 10_000
+
+
+def test_cli_eval_writes_a_results_folder(tmp_path, capsys):
+    out = tmp_path / "ms"
+    code = cli_main(
+        [
+            "eval",
+            "--episodes",
+            "20",
+            "--out",
+            str(out),
+            "--map",
+            "--map-trials",
+            "1",
+            "--trajectories",
+            "--quiet",
+        ]
+    )
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "managed_surge (paper) | noise | 73.7" in printed
+    metrics = json.loads((out / "eval.json").read_text())
+    assert metrics["episodes"] == 20 and "dockingrl eval" in metrics["command"]
+    for name in ("success_map.json", "success_map.png", "trajectories.json", "trajectories.png"):
+        assert (out / name).stat().st_size > 0, name
+
+
+def test_bad_evaluation_arguments():
+    with pytest.raises(ValueError, match="num_episodes"):
+        evaluate(ManagedSurgePolicy(), "noise", 0)
+    with pytest.raises(ValueError, match="unknown scenario"):
+        evaluate(ManagedSurgePolicy(), "calm", 5)
+    with pytest.raises(SystemExit):
+        cli_main(["eval", "--policy", "/nonexistent/policy.pt", "--quiet"])
