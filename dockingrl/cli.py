@@ -77,11 +77,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     metrics.update(policy=args.policy, command=command_line())
     print(table_row(name, scenario, metrics))
-    print(
-        f"failures: {metrics['failures']}; contact speed "
-        f"{metrics['contact_speed']['mean']:.3f} +- {metrics['contact_speed']['std']:.3f} m/s; "
-        f"time over successes {metrics['time_success_s']['mean']}"
-    )
+    speed, success_time = metrics["contact_speed"], metrics["time_success_s"]
+    line = f"failures: {metrics['failures']}"
+    if speed["n"]:
+        line += f"; contact speed {speed['mean']:.3f} +- {speed['std']:.3f} m/s"
+    if success_time["n"]:
+        line += f"; time over successes {success_time['mean']:.1f} +- {success_time['std']:.1f} s"
+    print(line)
     if out is not None:
         write_json(out / "eval.json", metrics)
     if args.map:
@@ -215,6 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
     ff.add_argument("--current", type=float, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y"))
     ff.set_defaults(func=cmd_filter_figure)
 
+    from dockingrl.train_cli import add_training_commands
+
+    add_training_commands(sub)
     return parser
 
 

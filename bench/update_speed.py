@@ -1,0 +1,235 @@
+"""Gradient updates per second of the TorchRL agents at the paper's sizes, beside a minimal
+plain-PyTorch implementation of the same update, in the same process.
+
+Usage: ``python bench/update_speed.py [--seconds 5] [--threads 2] [--algos sac td3 ppo]``
+
+SAC and TD3: one update = one minibatch of 256 transitions from a replay buffer (critics,
+actor, target networks). PPO: one update = one minibatch of 64 of a rollout (clipped objective,
+value loss, gradient clipping). Observations are the compound ones (12 numbers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import math
+import time
+
+import torch
+from tensordict import TensorDict
+from torch import nn
+
+from dockingrl.agents.algorithms import make_agent
+from dockingrl.agents.config import make_config
+from dockingrl.evaluation import describe_machine
+from dockingrl.scenarios import make_env
+
+OBS, ACT = 12, 2
+
+
+def transitions(n: int) -> TensorDict:
+    g = torch.Generator().manual_seed(0)
+    return TensorDict(
+        {
+            "observation": torch.randn(n, OBS, generator=g),
+            "action": torch.rand(n, ACT, generator=g) * 0.6 - 0.3,
+            "next": {
+                "observation": torch.randn(n, OBS, generator=g),
+                "reward": torch.randn(n, 1, generator=g),
+                "done": torch.zeros(n, 1, dtype=torch.bool),
+                "terminated": torch.zeros(n, 1, dtype=torch.bool),
+                "truncated": torch.zeros(n, 1, dtype=torch.bool),
+            },
+        },
+        batch_size=[n],
+    )
+
+
+def rate(step, seconds: float) -> float:
+    for _ in range(20):
+        step()
+    count, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        step()
+        count += 1
+    return count / (time.perf_counter() - start)
+
+
+# -- TorchRL -------------------------------------------------------------------------------
+def torchrl_update(algo: str):
+    env = make_env("compound", 1, seed=0)
+    cfg = make_config(algo, "paper")
+    agent = make_agent(cfg, OBS, env.action_spec[0], 30.0)
+    if algo == "ppo":
+        data = transitions(64 * 32)
+        with torch.no_grad():
+            data = agent.actor(data)
+            agent.advantage.value_network(data)
+            data["advantage"] = torch.randn(data.shape[0], 1)
+            data["value_target"] = torch.randn(data.shape[0], 1)
+        optim, params = agent.optimizers["all"], list(agent.loss.parameters())
+        index = iter(range(10**9))
+
+        def step():
+            i = next(index) % 32
+            batch = data[i * 64 : (i + 1) * 64]
+            out = agent.loss(batch)
+            total = out["loss_objective"] + out["loss_critic"]
+            optim.zero_grad(set_to_none=True)
+            total.backward()
+            torch.nn.utils.clip_grad_norm_(params, 0.5)
+            optim.step()
+
+        return step
+    agent.replay_buffer.extend(transitions(10_000))
+    return agent._off_policy_update
+
+
+# -- plain PyTorch --------------------------------------------------------------------------
+def mlp(sizes):
+    layers = []
+    for a, b in zip(sizes[:-1], sizes[1:], strict=True):
+        layers += [nn.Linear(a, b), nn.ReLU()]
+    return nn.Sequential(*layers[:-1])
+
+
+def plain_sac():
+    actor = mlp([OBS, 256, 256, 2 * ACT])
+    q1, q2 = mlp([OBS + ACT, 256, 256, 1]), mlp([OBS + ACT, 256, 256, 1])
+    t1, t2 = copy.deepcopy(q1), copy.deepcopy(q2)
+    qa = torch.optim.Adam([*q1.parameters(), *q2.parameters()], lr=3e-4)
+    aa = torch.optim.Adam(actor.parameters(), lr=3e-4)
+    data = transitions(10_000)
+    low, high = torch.tensor([-0.4, -0.3]), torch.tensor([0.8, 0.3])
+    alpha, gamma, tau = 0.2, 0.99, 0.005
+
+    def sample(obs):
+        mu, log_std = actor(obs).chunk(2, -1)
+        std = nn.functional.softplus(log_std) + 1e-4
+        u = mu + std * torch.randn_like(mu)
+        t = torch.tanh(u)
+        logp = (-0.5 * ((u - mu) / std) ** 2 - std.log() - 0.5 * math.log(2 * math.pi)).sum(-1)
+        logp = logp - torch.log((1 - t.pow(2)) * (high - low) / 2 + 1e-6).sum(-1)
+        return low + (t + 1) * (high - low) / 2, logp
+
+    def step():
+        b = data[torch.randint(0, 10_000, (256,))]
+        o, a, r = b["observation"], b["action"], b["next", "reward"]
+        o2, d = b["next", "observation"], b["next", "terminated"].float()
+        with torch.no_grad():
+            a2, logp2 = sample(o2)
+            x2 = torch.cat((o2, a2), -1)
+            q_next = torch.min(t1(x2), t2(x2)) - alpha * logp2.unsqueeze(-1)
+            y = r + gamma * (1 - d) * q_next
+        x = torch.cat((o, a), -1)
+        q_loss = (q1(x) - y).pow(2).mean() + (q2(x) - y).pow(2).mean()
+        anew, logp = sample(o)
+        xn = torch.cat((o, anew), -1)
+        a_loss = (alpha * logp.unsqueeze(-1) - torch.min(q1(xn), q2(xn))).mean()
+        qa.zero_grad()
+        aa.zero_grad()
+        (q_loss + a_loss).backward()
+        qa.step()
+        aa.step()
+        with torch.no_grad():
+            for net, target in ((q1, t1), (q2, t2)):
+                torch._foreach_lerp_(list(target.parameters()), list(net.parameters()), tau)
+
+    return step
+
+
+def plain_td3():
+    actor = mlp([OBS, 400, 300, ACT])
+    q1, q2 = mlp([OBS + ACT, 400, 300, 1]), mlp([OBS + ACT, 400, 300, 1])
+    ta, t1, t2 = copy.deepcopy(actor), copy.deepcopy(q1), copy.deepcopy(q2)
+    qa = torch.optim.Adam([*q1.parameters(), *q2.parameters()], lr=5e-4)
+    aa = torch.optim.Adam(actor.parameters(), lr=5e-4)
+    data = transitions(10_000)
+    low, high = torch.tensor([-0.4, -0.3]), torch.tensor([0.8, 0.3])
+    counter = [0]
+
+    def act(net, obs):
+        return low + (torch.tanh(net(obs)) + 1) * (high - low) / 2
+
+    def step():
+        counter[0] += 1
+        b = data[torch.randint(0, 10_000, (256,))]
+        o, a, r = b["observation"], b["action"], b["next", "reward"]
+        o2, d = b["next", "observation"], b["next", "terminated"].float()
+        with torch.no_grad():
+            noise = (torch.randn(256, ACT) * 0.2).clamp(-0.5, 0.5)
+            a2 = torch.maximum(torch.minimum(act(ta, o2) + noise, high), low)
+            x2 = torch.cat((o2, a2), -1)
+            y = r + 0.99 * (1 - d) * torch.min(t1(x2), t2(x2))
+        x = torch.cat((o, a), -1)
+        q_loss = (q1(x) - y).pow(2).mean() + (q2(x) - y).pow(2).mean()
+        qa.zero_grad()
+        q_loss.backward()
+        qa.step()
+        if counter[0] % 2 == 0:
+            a_loss = -q1(torch.cat((o, act(actor, o)), -1)).mean()
+            aa.zero_grad()
+            a_loss.backward()
+            aa.step()
+            with torch.no_grad():
+                for net, target in ((actor, ta), (q1, t1), (q2, t2)):
+                    torch._foreach_lerp_(list(target.parameters()), list(net.parameters()), 0.005)
+
+    return step
+
+
+def plain_ppo():
+    actor, critic = mlp([OBS, 256, 256, 2 * ACT]), mlp([OBS, 256, 256, 1])
+    params = [*actor.parameters(), *critic.parameters()]
+    optim = torch.optim.Adam(params, lr=3e-4)
+    n = 64 * 32
+    g = torch.Generator().manual_seed(0)
+    obs, raw = torch.randn(n, OBS, generator=g), torch.randn(n, ACT, generator=g)
+    old_logp, adv, ret = (
+        torch.randn(n, generator=g),
+        torch.randn(n, generator=g),
+        torch.randn(n, generator=g),
+    )
+    index = iter(range(10**9))
+
+    def step():
+        i = next(index) % 32
+        sl = slice(i * 64, (i + 1) * 64)
+        mu, log_std = actor(obs[sl]).chunk(2, -1)
+        std = nn.functional.softplus(log_std) + 1e-4
+        logp = torch.distributions.Normal(mu, std).log_prob(raw[sl]).sum(-1)
+        a = adv[sl]
+        a = (a - a.mean()) / (a.std() + 1e-8)
+        ratio = (logp - old_logp[sl]).exp()
+        objective = -torch.min(ratio * a, ratio.clamp(0.8, 1.2) * a).mean()
+        value = 0.5 * (critic(obs[sl]).squeeze(-1) - ret[sl]).pow(2).mean()
+        optim.zero_grad()
+        (objective + value).backward()
+        torch.nn.utils.clip_grad_norm_(params, 0.5)
+        optim.step()
+
+    return step
+
+
+PLAIN = {"sac": plain_sac, "td3": plain_td3, "ppo": plain_ppo}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=5.0)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--algos", nargs="+", default=["sac", "td3", "ppo"])
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    print(f"machine: {describe_machine()}")
+    print("| algorithm | TorchRL updates/s | plain PyTorch updates/s | TorchRL time / plain time |")
+    print("|---|---|---|---|")
+    for algo in args.algos:
+        ours = rate(torchrl_update(algo), args.seconds)
+        plain = rate(PLAIN[algo](), args.seconds)
+        print(f"| {algo} | {ours:,.0f} | {plain:,.0f} | {plain / ours:.2f}x |")
+
+
+if __name__ == "__main__":
+    main()

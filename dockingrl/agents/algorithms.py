@@ -1,0 +1,364 @@
+"""SAC, TD3 and PPO built from TorchRL's own pieces: actor / critic modules, ``SACLoss``,
+``TD3Loss``, ``ClipPPOLoss`` with ``GAE``, ``SoftUpdate`` target updaters, Adam optimisers,
+``AdditiveGaussianModule`` exploration and replay buffers.
+
+Each builder returns an :class:`Agent`: the exploration policy used while collecting, the
+deterministic policy used in evaluation, and ``learn(...)`` which turns collected data into
+gradient updates (the ``update()`` closure of TorchRL's sota-implementations)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers import RandomSampler
+from torchrl.modules import (
+    MLP,
+    AdditiveGaussianModule,
+    ProbabilisticActor,
+    TanhModule,
+    TanhNormal,
+    ValueOperator,
+)
+from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, TD3Loss
+from torchrl.objectives.value import GAE
+
+from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, TrainConfig
+
+#: what an off-policy replay buffer stores of each transition
+TRANSITION_KEYS = (
+    "observation",
+    "action",
+    ("next", "observation"),
+    ("next", "reward"),
+    ("next", "done"),
+    ("next", "terminated"),
+    ("next", "truncated"),
+)
+
+
+class ObservationScale(nn.Module):
+    """Multiplies the observation by fixed per-entry factors (part of the saved network)."""
+
+    def __init__(self, scale: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer("scale", scale.clone().float())
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        observation, *rest = inputs
+        return (
+            torch.cat((observation * self.scale, *rest), dim=-1)
+            if rest
+            else observation * self.scale
+        )
+
+
+def observation_scale(obs_dim: int, max_dist: float, normalize: bool) -> torch.Tensor:
+    """``1 / max_dist`` on every range entry (index 0 of each 6-block), 1 elsewhere."""
+    scale = torch.ones(obs_dim)
+    if normalize:
+        scale[0::6] = 1.0 / max_dist
+    return scale
+
+
+def mlp(
+    in_features: int,
+    out_features: int,
+    hidden: tuple[int, ...],
+    scale: torch.Tensor,
+) -> nn.Module:
+    return nn.Sequential(
+        ObservationScale(scale),
+        MLP(
+            in_features=in_features,
+            out_features=out_features,
+            num_cells=list(hidden),
+            activation_class=nn.ReLU,
+        ),
+    )
+
+
+class _Critic(nn.Module):
+    """Q(o, a): the scaled observation and the action through one MLP."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden, scale) -> None:
+        super().__init__()
+        self.net = mlp(obs_dim + act_dim, 1, hidden, torch.cat((scale, torch.ones(act_dim))))
+
+    def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat((observation, action), dim=-1))
+
+
+def stochastic_actor(obs_dim: int, action_spec: Bounded, hidden, scale, *, log_prob=False):
+    """Tanh-Normal actor (SAC, PPO): an MLP gives loc and scale, squashed into the bounds."""
+    act_dim = action_spec.shape[-1]
+    net = nn.Sequential(mlp(obs_dim, 2 * act_dim, hidden, scale), NormalParamExtractor())
+    return ProbabilisticActor(
+        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        out_keys=["action"],
+        spec=action_spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": action_spec.space.low, "high": action_spec.space.high},
+        return_log_prob=log_prob,
+    )
+
+
+def deterministic_actor(obs_dim: int, action_spec: Bounded, hidden, scale):
+    """TD3's actor: an MLP squashed by tanh into the action bounds."""
+    act_dim = action_spec.shape[-1]
+    return TensorDictSequential(
+        TensorDictModule(
+            mlp(obs_dim, act_dim, hidden, scale), in_keys=["observation"], out_keys=["param"]
+        ),
+        TanhModule(in_keys=["param"], out_keys=["action"], spec=action_spec),
+    )
+
+
+def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: float):
+    """The policy network of ``cfg.algo`` (what a saved policy holds)."""
+    scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
+    if cfg.algo == "td3":
+        return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale)
+    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, log_prob=cfg.algo == "ppo")
+
+
+@dataclass
+class Agent:
+    """An algorithm's modules and its update rule."""
+
+    config: TrainConfig
+    actor: nn.Module  # deterministic under ExplorationType.DETERMINISTIC
+    exploration_policy: nn.Module
+    loss: nn.Module
+    optimizers: dict[str, torch.optim.Optimizer]
+    target_updater: SoftUpdate | None = None
+    replay_buffer: TensorDictReplayBuffer | None = None
+    advantage: GAE | None = None
+    updates: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    # -- learning ------------------------------------------------------------------------
+    def learn(self, data: TensorDictBase, num_updates: int = 0) -> dict[str, float]:
+        """Off-policy: store ``data`` (``(num_envs, T)``) and run ``num_updates`` updates.
+        On-policy: PPO's epochs over ``data``. Returns mean losses (``losses/...``)."""
+        if self.config.algo == "ppo":
+            return self._learn_ppo(data)
+        self.replay_buffer.extend(data.select(*TRANSITION_KEYS).reshape(-1))
+        logs: dict[str, list[float]] = {}
+        for _ in range(num_updates):
+            for key, value in self._off_policy_update().items():
+                logs.setdefault(key, []).append(value)
+        return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _off_policy_update(self) -> dict[str, float]:
+        batch = self.replay_buffer.sample()
+        cfg, opt = self.config, self.optimizers
+        self.updates += 1
+        if cfg.algo == "sac":
+            out = self.loss(batch)
+            total = out["loss_actor"] + out["loss_qvalue"]
+            if cfg.learn_alpha:
+                total = total + out["loss_alpha"]
+            for o in opt.values():
+                o.zero_grad(set_to_none=True)
+            total.backward()
+            for o in opt.values():
+                o.step()
+            self.target_updater.step()
+            return {k: _scalar(out[k]) for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}
+        # TD3: the critics every update, the actor and the targets every policy_delay updates
+        q_loss, _ = self.loss.value_loss(batch)
+        opt["critic"].zero_grad(set_to_none=True)
+        q_loss.backward()
+        opt["critic"].step()
+        logs = {"loss_qvalue": _scalar(q_loss)}
+        if self.updates % cfg.policy_delay == 0:
+            a_loss, _ = self.loss.actor_loss(batch)
+            opt["actor"].zero_grad(set_to_none=True)
+            a_loss.backward()
+            opt["actor"].step()
+            self.target_updater.step()
+            logs["loss_actor"] = _scalar(a_loss)
+        return logs
+
+    def _learn_ppo(self, data: TensorDictBase) -> dict[str, float]:
+        cfg, optim = self.config, self.optimizers["all"]
+        params = list(self.loss.parameters())
+        frames = data.numel()
+        logs: dict[str, list[float]] = {}
+        for _ in range(cfg.epochs):
+            with torch.no_grad():
+                self.advantage(data)
+            flat = data.reshape(-1)
+            order = torch.randperm(frames, generator=self.extra["generator"])
+            for start in range(0, frames, cfg.minibatch_size):
+                batch = flat[order[start : start + cfg.minibatch_size]]
+                out = self.loss(batch)
+                total = out["loss_objective"] + out["loss_critic"]
+                if "loss_entropy" in out.keys():
+                    total = total + out["loss_entropy"]
+                optim.zero_grad(set_to_none=True)
+                total.backward()
+                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+                optim.step()
+                self.updates += 1
+                for key in ("loss_objective", "loss_critic", "clip_fraction", "kl_approx"):
+                    if key in out.keys():
+                        logs.setdefault(key, []).append(_scalar(out[key]))
+        return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        state = {
+            "loss": self.loss.state_dict(),
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "updates": self.updates,
+        }
+        if "generator" in self.extra:
+            state["generator"] = self.extra["generator"].get_state()
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        self.loss.load_state_dict(state["loss"])
+        for k, o in self.optimizers.items():
+            o.load_state_dict(state["optimizers"][k])
+        self.updates = state["updates"]
+        if "generator" in state:
+            self.extra["generator"].set_state(state["generator"])
+
+
+def _scalar(value: torch.Tensor) -> float:
+    return float(value.detach())
+
+
+def _adam(params, lr: float) -> torch.optim.Adam:
+    return torch.optim.Adam(list(params), lr=lr)
+
+
+def make_agent(
+    cfg: TrainConfig,
+    obs_dim: int,
+    action_spec: Bounded,
+    max_dist: float,
+    device: torch.device | str = "cpu",
+) -> Agent:
+    """Build the agent of ``cfg.algo`` for observations of ``obs_dim`` numbers."""
+    action_spec = action_spec.to(device)
+    scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
+    act_dim = action_spec.shape[-1]
+    actor = build_actor(cfg, obs_dim, action_spec, max_dist).to(device)
+    if isinstance(cfg, SACConfig):
+        return _make_sac(cfg, actor, obs_dim, act_dim, scale, device)
+    if isinstance(cfg, TD3Config):
+        return _make_td3(cfg, actor, action_spec, obs_dim, act_dim, scale, device)
+    if isinstance(cfg, PPOConfig):
+        return _make_ppo(cfg, actor, obs_dim, scale, device)
+    raise TypeError(f"no agent for {type(cfg).__name__}")
+
+
+def _replay_buffer(cfg, device) -> TensorDictReplayBuffer:
+    return TensorDictReplayBuffer(
+        storage=LazyTensorStorage(cfg.buffer_size, device=device),
+        sampler=RandomSampler(),
+        batch_size=cfg.batch_size,
+    )
+
+
+def _make_sac(cfg: SACConfig, actor, obs_dim, act_dim, scale, device) -> Agent:
+    qvalue = ValueOperator(
+        _Critic(obs_dim, act_dim, cfg.hidden, scale), in_keys=["observation", "action"]
+    ).to(device)
+    loss = SACLoss(
+        actor_network=actor,
+        qvalue_network=qvalue,
+        num_qvalue_nets=2,
+        loss_function="l2",
+        alpha_init=cfg.alpha,
+        fixed_alpha=not cfg.learn_alpha,
+        target_entropy=cfg.target_entropy,
+    )
+    loss.make_value_estimator(gamma=cfg.gamma)
+    optimizers = {
+        "actor": _adam(loss.actor_network_params.flatten_keys().values(), cfg.lr),
+        "critic": _adam(loss.qvalue_network_params.flatten_keys().values(), cfg.lr),
+    }
+    if cfg.learn_alpha:
+        optimizers["alpha"] = _adam([loss.log_alpha], cfg.lr)
+    return Agent(
+        cfg,
+        actor,
+        actor,
+        loss,
+        optimizers,
+        SoftUpdate(loss, tau=cfg.tau),
+        _replay_buffer(cfg, device),
+    )
+
+
+def _make_td3(cfg: TD3Config, actor, action_spec, obs_dim, act_dim, scale, device) -> Agent:
+    qvalue = ValueOperator(
+        _Critic(obs_dim, act_dim, cfg.hidden, scale), in_keys=["observation", "action"]
+    ).to(device)
+    exploration = TensorDictSequential(
+        actor,
+        AdditiveGaussianModule(
+            spec=action_spec,
+            sigma_init=float(cfg.exploration_sigma),
+            sigma_end=float(cfg.exploration_sigma),
+            device=device,
+        ),
+    )
+    loss = TD3Loss(
+        actor_network=actor,
+        qvalue_network=qvalue,
+        action_spec=action_spec,
+        num_qvalue_nets=2,
+        policy_noise=cfg.target_policy_noise,
+        noise_clip=cfg.target_noise_clip,
+        loss_function="l2",
+    )
+    loss.make_value_estimator(gamma=cfg.gamma)
+    optimizers = {
+        "actor": _adam(loss.actor_network_params.flatten_keys().values(), cfg.lr),
+        "critic": _adam(loss.qvalue_network_params.flatten_keys().values(), cfg.lr),
+    }
+    return Agent(
+        cfg,
+        actor,
+        exploration,
+        loss,
+        optimizers,
+        SoftUpdate(loss, tau=cfg.tau),
+        _replay_buffer(cfg, device),
+    )
+
+
+def _make_ppo(cfg: PPOConfig, actor, obs_dim, scale, device) -> Agent:
+    critic = ValueOperator(mlp(obs_dim, 1, cfg.hidden, scale), in_keys=["observation"]).to(device)
+    advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False)
+    loss = ClipPPOLoss(
+        actor_network=actor,
+        critic_network=critic,
+        clip_epsilon=cfg.clip,
+        entropy_bonus=cfg.entropy_coef > 0,
+        entropy_coeff=cfg.entropy_coef if cfg.entropy_coef > 0 else None,
+        critic_coeff=cfg.value_coef,
+        loss_critic_type="l2",
+        normalize_advantage=cfg.normalize_advantage,
+    )
+    generator = torch.Generator().manual_seed(cfg.seed)
+    return Agent(
+        cfg,
+        actor,
+        actor,
+        loss,
+        {"all": _adam(loss.parameters(), cfg.lr)},
+        advantage=advantage,
+        extra={"generator": generator},
+    )

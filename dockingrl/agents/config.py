@@ -1,0 +1,278 @@
+"""Typed training configurations. The defaults of each algorithm are the paper's ``paper``
+preset (Tables 3-5); ``fast`` presets use vectorised collection for a 2-core CPU. Every field
+is a command-line option of ``dockingrl train`` / ``train/train.py`` (``--help`` lists them with
+the doc below)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from dataclasses import dataclass, field, fields
+from typing import Any, get_type_hints
+
+from dockingrl.scenarios import SCENARIOS
+
+LOGGERS = ("wandb", "csv", "none")
+
+
+def _doc(text: str, **kwargs) -> Any:
+    return field(metadata={"doc": text}, **kwargs)
+
+
+@dataclass
+class TrainConfig:
+    """What every training run shares."""
+
+    scenario: str = _doc("observation scenario", default="compound")
+    total_steps: int = _doc("env steps (frames) to train for, all envs counted", default=500_000)
+    num_envs: int = _doc("envs stepped in parallel while collecting", default=1)
+    seed: int = _doc("seed of networks, exploration and envs", default=0)
+    eval_every: int = _doc("env steps between periodic evaluations", default=10_000)
+    eval_episodes: int = _doc("episodes of each periodic evaluation (paper: 10)", default=10)
+    final_eval_episodes: int = _doc("episodes of the final evaluation (paper: 500)", default=500)
+    checkpoint_every: int = _doc("env steps between checkpoints (0: never)", default=50_000)
+    logger: str = _doc("wandb (offline unless --wandb-online), csv or none", default="wandb")
+    wandb_online: bool = _doc("let wandb sync to its servers", default=False)
+    out: str = _doc("folder that holds the run folders", default="runs")
+    run_name: str = _doc(
+        "run folder name (default: dockingrl__algo__scenario__seed__time)", default=""
+    )
+    threads: int = _doc("torch CPU threads", default=2)
+    device: str = _doc("torch device", default="cpu")
+    compile: bool = _doc("torch.compile the env and filter steps", default=False)
+    normalize_observation: bool = _doc(
+        "scale the range by 1/max_dist inside the networks (not in the paper)", default=False
+    )
+    hidden: tuple[int, ...] = _doc("hidden layer sizes of actor and critic", default=(256, 256))
+
+    algo: str = ""  # set by the subclasses
+
+    def validate(self) -> None:
+        def fail(name, why):
+            raise ValueError(f"{type(self).__name__}.{name}: {why} (got {getattr(self, name)!r})")
+
+        if self.scenario not in SCENARIOS:
+            fail("scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
+        if self.logger not in LOGGERS:
+            fail("logger", f"valid: {', '.join(LOGGERS)}")
+        for name in (
+            "total_steps",
+            "num_envs",
+            "eval_episodes",
+            "final_eval_episodes",
+            "threads",
+            "eval_every",
+        ):
+            if getattr(self, name) < 1:
+                fail(name, "must be >= 1")
+        if self.checkpoint_every < 0:
+            fail("checkpoint_every", "must be >= 0")
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            fail("hidden", "needs positive layer sizes")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not (value == value and abs(value) != float("inf")):
+                fail(f.name, "must be finite")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class SACConfig(TrainConfig):
+    """SAC, Table 3."""
+
+    algo: str = "sac"
+    alpha: float = _doc("entropy temperature (fixed)", default=0.2)
+    learn_alpha: bool = _doc(
+        "tune alpha to the target entropy instead (not in the paper)", default=False
+    )
+    target_entropy: float = _doc("target entropy, -dim(action) = -2", default=-2.0)
+    batch_size: int = _doc("minibatch size", default=256)
+    gamma: float = _doc("discount", default=0.99)
+    lr: float = _doc("Adam learning rate, actor and critics", default=3e-4)
+    buffer_size: int = _doc("replay buffer capacity", default=1_000_000)
+    start_steps: int = _doc("uniformly random env steps before learning", default=10_000)
+    tau: float = _doc("target-network soft-update rate (every update)", default=0.005)
+    updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
+    frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
+
+    def validate(self) -> None:
+        super().validate()
+        _check_off_policy(self)
+
+
+@dataclass
+class TD3Config(TrainConfig):
+    """TD3, Table 4."""
+
+    algo: str = "td3"
+    total_steps: int = _doc("env steps (frames) to train for, all envs counted", default=2_500_000)
+    eval_every: int = _doc("env steps between periodic evaluations", default=50_000)
+    hidden: tuple[int, ...] = _doc("hidden layer sizes of actor and critic", default=(400, 300))
+    lr: float = _doc("Adam learning rate, actor and critics", default=5e-4)
+    buffer_size: int = _doc("replay buffer capacity", default=1_000_000)
+    start_steps: int = _doc(
+        "uniformly random env steps before learning (learning_starts)", default=100
+    )
+    batch_size: int = _doc("minibatch size", default=256)
+    tau: float = _doc("target-network soft-update rate", default=0.005)
+    gamma: float = _doc("discount", default=0.99)
+    updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
+    policy_delay: int = _doc("critic updates per actor and target update", default=2)
+    target_policy_noise: float = _doc("target policy smoothing noise sigma", default=0.2)
+    target_noise_clip: float = _doc("target policy smoothing noise clip", default=0.5)
+    exploration_sigma: float = _doc("Gaussian action-noise sigma while collecting", default=0.2)
+    frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
+
+    def validate(self) -> None:
+        super().validate()
+        _check_off_policy(self)
+        if self.policy_delay < 1:
+            raise ValueError(f"TD3Config.policy_delay: must be >= 1 (got {self.policy_delay})")
+
+
+@dataclass
+class PPOConfig(TrainConfig):
+    """PPO, Table 5 (stable-baselines3 defaults otherwise)."""
+
+    algo: str = "ppo"
+    total_steps: int = _doc("env steps (frames) to train for, all envs counted", default=2_500_000)
+    eval_every: int = _doc("env steps between periodic evaluations", default=50_000)
+    lr: float = _doc("Adam learning rate", default=3e-4)
+    steps_per_env: int = _doc("rollout length per env and update (n_steps)", default=2048)
+    minibatch_size: int = _doc("minibatch size", default=64)
+    epochs: int = _doc("passes over each rollout", default=10)
+    gamma: float = _doc("discount", default=0.99)
+    gae_lambda: float = _doc("GAE lambda", default=0.95)
+    clip: float = _doc("PPO clip range", default=0.2)
+    normalize_advantage: bool = _doc("normalise advantages per minibatch", default=True)
+    entropy_coef: float = _doc("entropy bonus coefficient", default=0.0)
+    value_coef: float = _doc("value-loss coefficient", default=0.5)
+    max_grad_norm: float = _doc("gradient-norm clip", default=0.5)
+
+    def validate(self) -> None:
+        super().validate()
+        frames = self.steps_per_env * self.num_envs
+        if self.steps_per_env < 2:
+            raise ValueError("PPOConfig.steps_per_env: must be >= 2")
+        if not 1 <= self.minibatch_size <= frames:
+            raise ValueError(
+                f"PPOConfig.minibatch_size: must be in [1, num_envs * steps_per_env = {frames}] "
+                f"(got {self.minibatch_size})"
+            )
+        if self.epochs < 1:
+            raise ValueError("PPOConfig.epochs: must be >= 1")
+
+
+def _check_off_policy(cfg) -> None:
+    if cfg.batch_size < 1 or cfg.buffer_size < cfg.batch_size:
+        raise ValueError(
+            f"{type(cfg).__name__}.buffer_size: must hold at least one batch "
+            f"({cfg.buffer_size} < {cfg.batch_size})"
+        )
+    if cfg.updates_per_step <= 0:
+        raise ValueError(f"{type(cfg).__name__}.updates_per_step: must be > 0")
+    if cfg.frames_per_batch < cfg.num_envs:
+        raise ValueError(f"{type(cfg).__name__}.frames_per_batch: must be >= num_envs")
+
+
+CONFIGS = {"sac": SACConfig, "td3": TD3Config, "ppo": PPOConfig}
+
+#: Presets beyond the paper's: vectorised collection sized for a 2-core CPU.
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    "paper": {"sac": {}, "td3": {}, "ppo": {}},
+    "fast": {
+        "sac": {
+            "num_envs": 16,
+            "updates_per_step": 0.25,
+            "batch_size": 512,
+            "lr": 1e-3,
+            "start_steps": 10_000,
+            "frames_per_batch": 1_000,
+            "normalize_observation": True,
+        },
+        "td3": {
+            "num_envs": 16,
+            "updates_per_step": 0.25,
+            "batch_size": 512,
+            "frames_per_batch": 1_000,
+            "normalize_observation": True,
+            "total_steps": 1_000_000,
+        },
+        "ppo": {
+            "num_envs": 64,
+            "steps_per_env": 256,
+            "minibatch_size": 4096,
+            "epochs": 10,
+            "lr": 3e-4,
+            "normalize_observation": True,
+            "total_steps": 3_000_000,
+        },
+    },
+}
+
+
+def make_config(algo: str, preset: str = "paper", **overrides) -> TrainConfig:
+    """The config of ``algo`` from a preset, with field overrides, validated."""
+    if algo not in CONFIGS:
+        raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; valid: {', '.join(PRESETS)}")
+    cls = CONFIGS[algo]
+    known = {f.name for f in fields(cls)} - {"algo"}
+    unknown = set(overrides) - known
+    if unknown:
+        raise ValueError(f"unknown {algo} option(s): {', '.join(sorted(unknown))}")
+    cfg = cls(**{**PRESETS[preset][algo], **overrides})
+    cfg.validate()
+    return cfg
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """One ``--option`` per field of every algorithm's config (documented in ``--help``); the
+    value ``None`` means "keep the preset's"."""
+    seen: dict[str, str] = {}
+    group = parser.add_argument_group("config fields (defaults: the chosen preset)")
+    for algo, cls in CONFIGS.items():
+        hints = get_type_hints(cls)
+        for f in fields(cls):
+            if f.name == "algo":
+                continue
+            if f.name in seen:
+                continue
+            seen[f.name] = algo
+            flag = "--" + f.name.replace("_", "-")
+            doc = f.metadata.get("doc", "")
+            owners = [a for a, c in CONFIGS.items() if f.name in {x.name for x in fields(c)}]
+            default = {a: getattr(CONFIGS[a](), f.name) for a in owners}
+            doc += (
+                f" [{', '.join(owners)}; paper: "
+                + ", ".join(f"{a}={v}" for a, v in default.items())
+                + "]"
+            )
+            kind = hints[f.name]
+            if kind is bool:
+                group.add_argument(
+                    flag, dest=f.name, default=None, action=argparse.BooleanOptionalAction, help=doc
+                )
+            elif kind == tuple[int, ...]:
+                group.add_argument(flag, dest=f.name, default=None, type=int, nargs="+", help=doc)
+            else:
+                group.add_argument(flag, dest=f.name, default=None, type=kind, help=doc)
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    known = {f.name for f in fields(CONFIGS[args.algo])} - {"algo"}
+    overrides = {}
+    for name, value in vars(args).items():
+        all_fields = {f.name for cls in CONFIGS.values() for f in fields(cls)} - {"algo"}
+        if value is None or name not in all_fields:
+            continue
+        if name not in known:
+            raise SystemExit(f"error: --{name.replace('_', '-')} does not apply to {args.algo}")
+        overrides[name] = tuple(value) if isinstance(value, list) else value
+    try:
+        return make_config(args.algo, args.preset, **overrides)
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from exc

@@ -1,0 +1,59 @@
+"""Saving a trained policy so that ``dockingrl eval --policy PATH`` can load it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torchrl.data import Bounded
+
+from dockingrl.io import atomic_write
+
+FORMAT = "dockingrl.policy/1"
+
+
+def save_policy(
+    path: str | Path,
+    actor: torch.nn.Module,
+    config,
+    obs_dim: int,
+    action_spec: Bounded,
+    max_dist: float,
+    **metadata,
+) -> Path:
+    """Write the actor's weights with what is needed to rebuild it (atomically)."""
+    payload = {
+        "format": FORMAT,
+        "algo": config.algo,
+        "scenario": config.scenario,
+        "config": config.to_dict(),
+        "obs_dim": obs_dim,
+        "action_low": action_spec.space.low.reshape(-1)[-2:].cpu().tolist(),
+        "action_high": action_spec.space.high.reshape(-1)[-2:].cpu().tolist(),
+        "max_dist": max_dist,
+        "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()},
+        "metadata": metadata,
+    }
+    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def load_policy(path: str | Path, device: torch.device | str = "cpu"):
+    """Rebuild a saved actor. Returns ``(actor, info)`` where ``info`` has ``algo``,
+    ``scenario``, ``config`` and ``metadata``. The actor acts deterministically under
+    ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate` sets)."""
+    from dockingrl.agents.algorithms import build_actor
+    from dockingrl.agents.config import CONFIGS
+
+    payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a dockingrl policy file ({FORMAT})")
+    fields = dict(payload["config"])
+    fields["hidden"] = tuple(fields["hidden"])
+    config = CONFIGS[payload["algo"]](**fields)
+    low = torch.tensor(payload["action_low"])
+    high = torch.tensor(payload["action_high"])
+    spec = Bounded(low=low, high=high, shape=low.shape)
+    actor = build_actor(config, payload["obs_dim"], spec, payload["max_dist"])
+    actor.load_state_dict(payload["state_dict"])
+    info = {k: payload[k] for k in ("algo", "scenario", "config", "metadata")}
+    return actor.to(device).eval(), info

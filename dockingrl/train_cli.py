@@ -1,0 +1,53 @@
+"""``dockingrl train``: the command-line front of :func:`dockingrl.training.train`."""
+
+from __future__ import annotations
+
+import argparse
+
+from dockingrl.agents.config import CONFIGS, PRESETS, add_config_arguments, config_from_args
+
+
+def add_training_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--algo", choices=list(CONFIGS), required=True, help="algorithm")
+    parser.add_argument(
+        "--preset",
+        choices=list(PRESETS),
+        default="paper",
+        help="'paper': Tables 3-5 as published; 'fast': vectorised collection "
+        "sized for a 2-core CPU",
+    )
+    parser.add_argument(
+        "--resume",
+        default=None,
+        metavar="RUN_DIR",
+        help="continue the run in RUN_DIR from its latest checkpoint to the same "
+        "total (its config.json is used)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_config_arguments(parser)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from dockingrl.cli import command_line
+    from dockingrl.training import train
+
+    cfg = None if args.resume else config_from_args(args)
+    result = train(cfg, resume=args.resume, progress=not args.no_progress, command=command_line())
+    s, e = result["summary"], result["eval"]
+    print(
+        f"{s['algo']} {s['scenario']}: {s['frames']} env steps ({s['num_envs']} envs), "
+        f"{s['updates']} updates, {s['train_wall_clock_s']:.0f} s; final {e['episodes']}-episode "
+        f"success {e['success_rate']:.1f} %, reward {e['total_reward']['mean']:.1f} "
+        f"+- {e['total_reward']['std']:.1f}; run folder {result['run_dir']}"
+    )
+    return 0
+
+
+def add_training_commands(sub) -> None:
+    tr = sub.add_parser(
+        "train",
+        help="train SAC, TD3 or PPO on a scenario",
+        description="Train an agent; every config field is an option (default: the preset).",
+    )
+    add_training_arguments(tr)
+    tr.set_defaults(func=cmd_train)

@@ -1,0 +1,402 @@
+"""Training loop shared by SAC, TD3 and PPO: collection with TorchRL's ``Collector``, periodic
+and final evaluation, logging (wandb offline by default), atomic checkpoints and resume."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import time
+from dataclasses import fields
+from pathlib import Path
+
+import torch
+from torchrl.collectors import Collector
+from torchrl.envs import RewardSum
+from torchrl.envs.utils import ExplorationType
+
+from dockingrl.agents.algorithms import Agent, make_agent
+from dockingrl.agents.config import CONFIGS, TrainConfig
+from dockingrl.agents.saving import save_policy
+from dockingrl.evaluation import base_env, describe_machine, evaluate
+from dockingrl.io import atomic_write, write_json
+from dockingrl.scenarios import make_env
+
+CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
+
+
+class RunLogger:
+    """Namespaced scalars (``train/``, ``eval/``, ``losses/``, ``time/``) to wandb (offline by
+    default) or TorchRL's CSV logger, plus a local ``curves.csv`` kept whatever the choice."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: Path, run_id: str) -> None:
+        self.curves = run_dir / "curves.csv"
+        self.backend = None
+        if cfg.logger == "wandb":
+            from torchrl.record.loggers import WandbLogger
+
+            self.backend = WandbLogger(
+                exp_name=run_dir.name,
+                offline=not cfg.wandb_online,
+                save_dir=str(run_dir),
+                id=run_id,
+                project="dockingrl",
+                config=cfg.to_dict(),
+                resume="allow",
+                log_env_packages=False,
+            )
+        elif cfg.logger == "csv":
+            from torchrl.record.loggers import CSVLogger
+
+            self.backend = CSVLogger(exp_name=run_dir.name, log_dir=str(run_dir / "csv"))
+            self.backend.log_hparams(cfg.to_dict())
+
+    def log(self, metrics: dict[str, float], step: int) -> None:
+        if self.backend is not None:
+            for key, value in metrics.items():
+                self.backend.log_scalar(key, float(value), step=step)
+        new = not self.curves.exists()
+        with self.curves.open("a", newline="") as f:
+            writer = csv.writer(f)
+            if new:
+                writer.writerow(["step", "key", "value"])
+            for key, value in metrics.items():
+                writer.writerow([step, key, float(value)])
+
+    def finish(self, summary: dict) -> None:
+        if self.backend is not None and hasattr(self.backend, "experiment"):
+            experiment = self.backend.experiment
+            if hasattr(experiment, "summary"):
+                experiment.summary.update(
+                    {k: v for k, v in summary.items() if isinstance(v, (int, float, str))}
+                )
+            if hasattr(experiment, "finish"):
+                experiment.finish()
+
+
+def read_curves(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
+    """``curves.csv`` as ``{key: [(step, value), ...]}``."""
+    curves: dict[str, list[tuple[int, float]]] = {}
+    path = Path(run_dir) / "curves.csv"
+    if path.exists():
+        with path.open() as f:
+            for row in csv.DictReader(f):
+                curves.setdefault(row["key"], []).append((int(row["step"]), float(row["value"])))
+    return curves
+
+
+def default_run_name(cfg: TrainConfig) -> str:
+    return f"dockingrl__{cfg.algo}__{cfg.scenario}__{cfg.seed}__{int(time.time())}"
+
+
+class Trainer:
+    """Trains one agent on one scenario; see :func:`train`."""
+
+    def __init__(
+        self, cfg: TrainConfig, run_dir: Path, *, progress: bool = True, command: str = ""
+    ) -> None:
+        self.cfg, self.run_dir, self.progress, self.command = cfg, run_dir, progress, command
+        torch.set_num_threads(cfg.threads)
+        self.frames = 0
+        self.episodes = 0
+        self.elapsed = 0.0
+        self.next_eval = cfg.eval_every
+        self.next_checkpoint = cfg.checkpoint_every or None
+        self.last_success = float("nan")
+        self.run_id = run_dir.name.replace("__", "-")[-60:]
+        probe = make_env(cfg.scenario, 1, seed=0)
+        sim = base_env(probe)
+        self.obs_dim = probe.observation_spec["observation"].shape[-1]
+        self.action_spec = probe.action_spec[0].clone()
+        self.max_dist = sim.config.max_dist
+        torch.manual_seed(cfg.seed)
+        self.agent: Agent = make_agent(
+            cfg, self.obs_dim, self.action_spec, self.max_dist, cfg.device
+        )
+
+    # -- checkpoints -----------------------------------------------------------------------
+    @property
+    def checkpoint_root(self) -> Path:
+        return self.run_dir / "checkpoints"
+
+    def save_checkpoint(self) -> Path:
+        """Write a complete checkpoint folder, then point ``latest.json`` at it (one atomic
+        rename), then drop older ones: a crash at any point leaves a usable checkpoint."""
+        path = self.checkpoint_root / f"step_{self.frames:010d}"
+        tmp = path.with_name(path.name + ".tmp")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        state = {
+            "format": CHECKPOINT_FORMAT,
+            "agent": self.agent.state_dict(),
+            "frames": self.frames,
+            "episodes": self.episodes,
+            "elapsed": self.elapsed,
+            "next_eval": self.next_eval,
+            "next_checkpoint": self.next_checkpoint,
+            "torch_rng": torch.get_rng_state(),
+        }
+        torch.save(state, tmp / "state.pt")
+        if self.agent.replay_buffer is not None and len(self.agent.replay_buffer):
+            self.agent.replay_buffer.dumps(tmp / "replay")
+        shutil.rmtree(path, ignore_errors=True)
+        tmp.rename(path)
+        write_json(self.checkpoint_root / "latest.json", {"path": path.name, "frames": self.frames})
+        for old in self.checkpoint_root.glob("step_*"):
+            if old != path:
+                shutil.rmtree(old, ignore_errors=True)
+        return path
+
+    def load_checkpoint(self) -> bool:
+        latest = self.checkpoint_root / "latest.json"
+        if not latest.exists():
+            return False
+        path = self.checkpoint_root / json.loads(latest.read_text())["path"]
+        state = torch.load(path / "state.pt", map_location="cpu", weights_only=False)
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise ValueError(f"{path} is not a dockingrl checkpoint")
+        self.agent.load_state_dict(state["agent"])
+        if (path / "replay").exists():
+            self.agent.replay_buffer.loads(path / "replay")
+        self.frames, self.episodes, self.elapsed = (
+            state["frames"],
+            state["episodes"],
+            state["elapsed"],
+        )
+        self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
+        torch.set_rng_state(state["torch_rng"])
+        return True
+
+    # -- evaluation ------------------------------------------------------------------------
+    def periodic_eval(self) -> dict[str, float]:
+        m = evaluate(
+            self.agent.actor,
+            self.cfg.scenario,
+            self.cfg.eval_episodes,
+            seed=1_000_000 + self.frames,
+            device=self.cfg.device,
+        )
+        self.last_success = m["success_rate"]
+        return {
+            "eval/success_rate": m["success_rate"],
+            "eval/total_reward": m["total_reward"]["mean"],
+            "eval/episode_time_s": m["time_all_s"]["mean"],
+        }
+
+    # -- the loop --------------------------------------------------------------------------
+    def _collector(self, env) -> Collector:
+        cfg = self.cfg
+        if cfg.algo == "ppo":
+            frames_per_batch = cfg.num_envs * cfg.steps_per_env
+            random_frames = 0
+        else:
+            frames_per_batch = max(
+                cfg.num_envs, cfg.frames_per_batch // cfg.num_envs * cfg.num_envs
+            )
+            random_frames = max(0, cfg.start_steps - self.frames)
+            random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
+        remaining = cfg.total_steps - self.frames
+        return Collector(
+            env,
+            self.agent.exploration_policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=-(-remaining // frames_per_batch) * frames_per_batch,
+            init_random_frames=random_frames,
+            exploration_type=ExplorationType.RANDOM,
+            device=cfg.device,
+            auto_register_policy_transforms=False,
+        )
+
+    def run(self, logger: RunLogger) -> None:
+        cfg = self.cfg
+        env = make_env(
+            cfg.scenario,
+            cfg.num_envs,
+            seed=cfg.seed * 1_000_003 + self.frames,
+            device=cfg.device,
+            compile=cfg.compile,
+            transforms=[RewardSum()],
+        )
+        collector = self._collector(env)
+        bar = None
+        if self.progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(
+                total=cfg.total_steps,
+                initial=self.frames,
+                unit="step",
+                desc=cfg.algo,
+                dynamic_ncols=True,
+            )
+        started = time.perf_counter() - self.elapsed
+        try:
+            for data in collector:
+                if self.frames >= cfg.total_steps:
+                    break
+                batch_frames = data.numel()
+                self.frames += batch_frames
+                metrics = self._train_on(data)
+                done = data["next", "done"].squeeze(-1)
+                if bool(done.any()):
+                    self.episodes += int(done.sum())
+                    metrics["train/episode_reward"] = float(
+                        data["next", "episode_reward"][done].mean()
+                    )
+                    metrics["train/success_rate"] = 100.0 * float(
+                        data["next", "success"][done].float().mean()
+                    )
+                self.elapsed = time.perf_counter() - started
+                metrics.update(
+                    {
+                        "train/episodes": self.episodes,
+                        "time/elapsed_s": self.elapsed,
+                        "time/steps_per_s": self.frames / max(self.elapsed, 1e-9),
+                        "time/updates": self.agent.updates,
+                    }
+                )
+                if self.frames >= self.next_eval:
+                    metrics.update(self.periodic_eval())
+                    while self.next_eval <= self.frames:
+                        self.next_eval += cfg.eval_every
+                logger.log(metrics, self.frames)
+                if bar is not None:
+                    bar.update(batch_frames)
+                    bar.set_postfix(
+                        sps=f"{metrics['time/steps_per_s']:.0f}",
+                        success=f"{self.last_success:.0f}%",
+                    )
+                if self.next_checkpoint is not None and self.frames >= self.next_checkpoint:
+                    while self.next_checkpoint <= self.frames:
+                        self.next_checkpoint += cfg.checkpoint_every
+                    self.save_checkpoint()
+        finally:
+            collector.shutdown()
+            if bar is not None:
+                bar.close()
+
+    def _train_on(self, data) -> dict[str, float]:
+        cfg = self.cfg
+        if cfg.algo == "ppo":
+            losses = self.agent.learn(data)
+        else:
+            learning_frames = self.frames - cfg.start_steps
+            target = int(cfg.updates_per_step * learning_frames) if learning_frames > 0 else 0
+            losses = self.agent.learn(data, num_updates=max(0, target - self.agent.updates))
+        return {f"losses/{k}": v for k, v in losses.items()}
+
+    def finish(self, logger: RunLogger) -> dict:
+        cfg = self.cfg
+        save_policy(
+            self.run_dir / "policy.pt",
+            self.agent.actor,
+            cfg,
+            self.obs_dim,
+            self.action_spec,
+            self.max_dist,
+            frames=self.frames,
+        )
+        start = time.perf_counter()
+        final = evaluate(
+            self.agent.actor,
+            cfg.scenario,
+            cfg.final_eval_episodes,
+            seed=cfg.seed + 10_000,
+            device=cfg.device,
+            progress=self.progress,
+        )
+        final.update(algo=cfg.algo, policy=str(self.run_dir / "policy.pt"), command=self.command)
+        write_json(self.run_dir / "eval.json", final)
+        summary = {
+            "algo": cfg.algo,
+            "scenario": cfg.scenario,
+            "frames": self.frames,
+            "num_envs": cfg.num_envs,
+            "updates": self.agent.updates,
+            "train_wall_clock_s": self.elapsed,
+            "final_eval_wall_clock_s": time.perf_counter() - start,
+            "success_rate": final["success_rate"],
+            "machine": describe_machine(),
+            "command": self.command,
+        }
+        write_json(self.run_dir / "summary.json", summary)
+        logger.log(
+            {
+                "eval/final_success_rate": final["success_rate"],
+                "eval/final_total_reward": final["total_reward"]["mean"],
+            },
+            self.frames,
+        )
+        plot_run(self.run_dir)
+        logger.finish(summary)
+        return {"summary": summary, "eval": final}
+
+
+def plot_run(run_dir: str | Path) -> Path | None:
+    """Learning curve of a run (Figures 6-8 style) from its ``curves.csv``."""
+    from dockingrl.plots import plot_learning_curve
+
+    run_dir = Path(run_dir)
+    curves = read_curves(run_dir)
+    if "eval/total_reward" not in curves:
+        return None
+    steps = [s for s, _ in curves["eval/total_reward"]]
+    summary_path = run_dir / "summary.json"
+    footer = ""
+    if summary_path.exists():
+        s = json.loads(summary_path.read_text())
+        footer = (
+            f"{s['command']}  |  {s['machine']}  |  train {s['train_wall_clock_s']:.0f} s, "
+            f"final success {s['success_rate']:.1f} %"
+        )
+    return plot_learning_curve(
+        steps,
+        [v for _, v in curves["eval/total_reward"]],
+        [v for _, v in curves["eval/episode_time_s"]],
+        run_dir / "learning_curve.png",
+        success=[v for _, v in curves["eval/success_rate"]],
+        title=run_dir.name,
+        footer=footer,
+    )
+
+
+def train(
+    cfg: TrainConfig, *, resume: str | Path | None = None, progress: bool = True, command: str = ""
+) -> dict:
+    """Train ``cfg.algo`` on ``cfg.scenario``; returns ``{"summary", "eval", "run_dir"}``.
+
+    The run folder (``cfg.out / run_name``) receives ``config.json``, ``curves.csv``, the logger's
+    files, ``checkpoints/`` (every ``checkpoint_every`` steps, atomic), and at the end
+    ``policy.pt`` (for ``dockingrl eval --policy``), ``eval.json`` (the final evaluation),
+    ``summary.json`` and ``learning_curve.png``.
+
+    Args:
+        resume: a run folder whose latest checkpoint to continue from, to the same
+            ``total_steps`` (its ``config.json`` is used; ``cfg`` is ignored).
+    """
+    if resume is not None:
+        run_dir = Path(resume)
+        saved = json.loads((run_dir / "config.json").read_text())
+        cls = CONFIGS[saved["algo"]]
+        names = {f.name for f in fields(cls)}
+        saved = {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items() if k in names}
+        cfg = cls(**saved)
+    else:
+        cfg.validate()
+        run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
+        if (run_dir / "config.json").exists():
+            raise FileExistsError(f"{run_dir} already holds a run: pass --resume {run_dir}")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(run_dir / "config.json", cfg.to_dict())
+    trainer = Trainer(cfg, run_dir, progress=progress, command=command)
+    if resume is not None and not trainer.load_checkpoint():
+        raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints to resume from")
+    logger = RunLogger(cfg, run_dir, trainer.run_id)
+    if trainer.frames < cfg.total_steps:
+        trainer.run(logger)
+    result = trainer.finish(logger)
+    result["run_dir"] = str(run_dir)
+    return result
+
+
+__all__ = ["RunLogger", "Trainer", "atomic_write", "plot_run", "read_curves", "train"]

@@ -1,0 +1,246 @@
+"""Smoke runs of every algorithm on every scenario, checkpoint/resume, saved policies, CLI."""
+
+import json
+
+import pytest
+import torch
+
+from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, make_config
+from dockingrl.agents.saving import load_policy
+from dockingrl.cli import main as cli_main
+from dockingrl.evaluation import evaluate
+from dockingrl.training import Trainer, read_curves, train
+
+TINY = {
+    "sac": {
+        "total_steps": 400,
+        "num_envs": 4,
+        "start_steps": 100,
+        "frames_per_batch": 100,
+        "batch_size": 32,
+        "hidden": (32, 32),
+        "updates_per_step": 0.5,
+    },
+    "td3": {
+        "total_steps": 400,
+        "num_envs": 4,
+        "start_steps": 100,
+        "frames_per_batch": 100,
+        "batch_size": 32,
+        "hidden": (32, 32),
+        "updates_per_step": 0.5,
+    },
+    "ppo": {
+        "total_steps": 512,
+        "num_envs": 8,
+        "steps_per_env": 32,
+        "minibatch_size": 64,
+        "epochs": 2,
+        "hidden": (32, 32),
+    },
+}
+COMMON = {
+    "eval_every": 200,
+    "eval_episodes": 3,
+    "final_eval_episodes": 6,
+    "logger": "csv",
+    "checkpoint_every": 200,
+    "threads": 1,
+}
+
+
+def tiny_config(algo, scenario, tmp_path, **extra):
+    return make_config(
+        algo,
+        "paper",
+        scenario=scenario,
+        out=str(tmp_path),
+        run_name=f"{algo}_{scenario}",
+        **{**TINY[algo], **COMMON, **extra},
+    )
+
+
+@pytest.mark.parametrize("scenario", ["no_noise", "noise", "filtered", "compound"])
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_every_algorithm_trains_on_every_scenario(algo, scenario, tmp_path):
+    result = train(tiny_config(algo, scenario, tmp_path), progress=False)
+    run = tmp_path / f"{algo}_{scenario}"
+    s = result["summary"]
+    assert s["frames"] >= TINY[algo]["total_steps"] and s["updates"] > 0
+    assert result["eval"]["episodes"] == 6
+    for name in (
+        "config.json",
+        "curves.csv",
+        "eval.json",
+        "summary.json",
+        "policy.pt",
+        "learning_curve.png",
+    ):
+        assert (run / name).stat().st_size > 0, name
+    curves = read_curves(run)
+    assert any(k.startswith("losses/") for k in curves)
+    assert "eval/success_rate" in curves and "time/steps_per_s" in curves
+    policy, info = load_policy(run / "policy.pt")
+    assert info["algo"] == algo and info["scenario"] == scenario
+    again = evaluate(policy, scenario, 6, seed=COMMON["threads"] * 0 + 10_000)
+    assert again["success_rate"] == result["eval"]["success_rate"]
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
+    cfg = tiny_config(algo, "compound", tmp_path, total_steps=2 * TINY[algo]["total_steps"])
+    original = Trainer.save_checkpoint
+    calls = {"n": 0}
+
+    def save_then_crash(self):
+        path = original(self)
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise KeyboardInterrupt("simulated crash after the first checkpoint")
+        return path
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_crash)
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, progress=False)
+    run = tmp_path / f"{algo}_compound"
+    latest = json.loads((run / "checkpoints" / "latest.json").read_text())
+    assert 0 < latest["frames"] < cfg.total_steps
+    assert not (run / "policy.pt").exists()
+    state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
+    result = train(None, resume=run, progress=False)
+    assert result["summary"]["frames"] >= cfg.total_steps
+    assert result["summary"]["updates"] > state["agent"]["updates"]
+    steps = [s for s, _ in read_curves(run)["time/updates"]]
+    assert steps == sorted(steps) and len(set(steps)) == len(steps), "no step logged twice"
+
+
+def test_checkpoint_round_trip_restores_networks_and_buffer(tmp_path):
+    cfg = tiny_config("sac", "noise", tmp_path)
+    train(cfg, progress=False)
+    run = tmp_path / "sac_noise"
+    trainer = Trainer(cfg, run, progress=False)
+    assert trainer.load_checkpoint()
+    saved = torch.load(run / "policy.pt", weights_only=True)["state_dict"]
+    # the last checkpoint (frames 400) is the final state: the saved policy equals it
+    for key, value in trainer.agent.actor.state_dict().items():
+        torch.testing.assert_close(value, saved[key])
+    assert len(trainer.agent.replay_buffer) == trainer.frames
+
+
+def test_paper_presets_match_tables_3_to_5():
+    sac, td3, ppo = SACConfig(), TD3Config(), PPOConfig()
+    assert (
+        sac.alpha,
+        sac.batch_size,
+        sac.gamma,
+        sac.lr,
+        sac.buffer_size,
+        sac.start_steps,
+        sac.tau,
+        sac.updates_per_step,
+        sac.hidden,
+    ) == (0.2, 256, 0.99, 3e-4, 1_000_000, 10_000, 0.005, 1.0, (256, 256))
+    assert sac.target_entropy == -2.0 and not sac.learn_alpha
+    assert (
+        td3.lr,
+        td3.start_steps,
+        td3.batch_size,
+        td3.policy_delay,
+        td3.target_policy_noise,
+        td3.target_noise_clip,
+        td3.exploration_sigma,
+        td3.hidden,
+    ) == (5e-4, 100, 256, 2, 0.2, 0.5, 0.2, (400, 300))
+    assert (
+        ppo.lr,
+        ppo.steps_per_env,
+        ppo.minibatch_size,
+        ppo.gae_lambda,
+        ppo.clip,
+        ppo.entropy_coef,
+        ppo.value_coef,
+        ppo.max_grad_norm,
+        ppo.epochs,
+        ppo.hidden,
+    ) == (3e-4, 2048, 64, 0.95, 0.2, 0.0, 0.5, 0.5, 10, (256, 256))
+
+
+def test_impossible_configs_are_refused():
+    with pytest.raises(ValueError, match="scenario"):
+        make_config("sac", scenario="calm")
+    with pytest.raises(ValueError, match="minibatch_size"):
+        make_config("ppo", num_envs=1, steps_per_env=16, minibatch_size=64)
+    with pytest.raises(ValueError, match="unknown sac option"):
+        make_config("sac", steps_per_env=3)
+    with pytest.raises(ValueError, match="unknown algorithm"):
+        make_config("ddpg")
+    with pytest.raises(ValueError, match="total_steps"):
+        make_config("td3", total_steps=0)
+
+
+def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
+    args = [
+        "train",
+        "--algo",
+        "ppo",
+        "--scenario",
+        "filtered",
+        "--total-steps",
+        "256",
+        "--num-envs",
+        "8",
+        "--steps-per-env",
+        "32",
+        "--minibatch-size",
+        "64",
+        "--epochs",
+        "1",
+        "--hidden",
+        "16",
+        "16",
+        "--eval-every",
+        "256",
+        "--eval-episodes",
+        "2",
+        "--final-eval-episodes",
+        "4",
+        "--logger",
+        "none",
+        "--out",
+        str(tmp_path),
+        "--run-name",
+        "cli",
+        "--no-progress",
+        "--threads",
+        "1",
+    ]
+    assert cli_main(args) == 0
+    assert "final 4-episode success" in capsys.readouterr().out
+    out = tmp_path / "eval"
+    assert (
+        cli_main(
+            [
+                "eval",
+                "--policy",
+                str(tmp_path / "cli" / "policy.pt"),
+                "--episodes",
+                "5",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    metrics = json.loads((out / "eval.json").read_text())
+    assert metrics["scenario"] == "filtered" and metrics["episodes"] == 5
+    with pytest.raises(SystemExit):
+        cli_main(["train", "--algo", "ppo", "--start-steps", "5"])  # a SAC/TD3 option
+
+
+def test_wandb_offline_logging(tmp_path, monkeypatch):
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    cfg = tiny_config("ppo", "noise", tmp_path, logger="wandb", total_steps=256)
+    train(cfg, progress=False)
+    offline = list((tmp_path / "ppo_noise" / "wandb").glob("offline-run-*"))
+    assert offline, "wandb wrote no offline run"
