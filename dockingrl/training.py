@@ -19,7 +19,7 @@ from dockingrl.agents.algorithms import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
 from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
-from dockingrl.io import atomic_write, write_json
+from dockingrl.io import write_json
 from dockingrl.scenarios import make_env
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
@@ -399,4 +399,4 @@ def train(
     return result
 
 
-__all__ = ["RunLogger", "Trainer", "atomic_write", "plot_run", "read_curves", "train"]
+__all__ = ["RunLogger", "Trainer", "plot_run", "read_curves", "train"]

@@ -197,3 +197,21 @@ def test_compiled_pipeline_matches_eager():
         b["next", "observation"], a["next", "observation"], rtol=1e-4, atol=1e-4
     )
     torch.testing.assert_close(b["next", "reward"], a["next", "reward"], rtol=1e-4, atol=1e-4)
+
+
+def test_filter_parameters_round_trip_through_a_file(tmp_path):
+    ekf = EKFTransform(learnable=True)
+    with torch.no_grad():
+        ekf.process_noise.log_diag.add_(0.3)
+        ekf.process_noise.off_diag.fill_(0.01)
+        ekf.measurement_noise.log_std.sub_(0.2)
+    ekf.save_filter_params(tmp_path / "filter.pt")
+    fresh = EKFTransform().load_filter_params(tmp_path / "filter.pt")
+    torch.testing.assert_close(fresh.process_noise(), ekf.process_noise())
+    torch.testing.assert_close(fresh.measurement_noise.std(), ekf.measurement_noise.std())
+    assert torch.linalg.eigvalsh(fresh.process_noise().double()).min() > 0
+    env = make_env("filtered", 2, seed=0, filter_params=tmp_path / "filter.pt")
+    torch.testing.assert_close(env.transform[0].process_noise(), ekf.process_noise())
+    (tmp_path / "bad.pt").write_bytes(b"not a filter file")
+    with pytest.raises(Exception):
+        EKFTransform().load_filter_params(tmp_path / "bad.pt")
