@@ -213,5 +213,5 @@ def test_filter_parameters_round_trip_through_a_file(tmp_path):
     env = make_env("filtered", 2, seed=0, filter_params=tmp_path / "filter.pt")
     torch.testing.assert_close(env.transform[0].process_noise(), ekf.process_noise())
     (tmp_path / "bad.pt").write_bytes(b"not a filter file")
-    with pytest.raises(Exception):
+    with pytest.raises(ValueError, match="not a"):
         EKFTransform().load_filter_params(tmp_path / "bad.pt")

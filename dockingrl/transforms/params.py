@@ -33,7 +33,13 @@ def save_filter_params(transform, path: str | Path, **metadata) -> Path:
 def load_filter_params(transform, path: str | Path) -> dict:
     """Load parameters written by :func:`save_filter_params` into ``transform``; returns the
     stored payload."""
-    payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no filter-parameter file at {path}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a foreign or damaged file fails to unpickle in many ways
+        raise ValueError(f"{path} is not a dockingrl filter-parameter file: {exc}") from exc
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
     transform.process_noise.load_state_dict(payload["process_noise"])
