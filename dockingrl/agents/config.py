@@ -185,17 +185,13 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     "fast": {
         "sac": {
             "num_envs": 16,
-            "updates_per_step": 0.25,
-            "batch_size": 512,
-            "lr": 1e-3,
-            "start_steps": 10_000,
+            "updates_per_step": 0.5,
             "frames_per_batch": 1_000,
             "normalize_observation": True,
         },
         "td3": {
             "num_envs": 16,
-            "updates_per_step": 0.25,
-            "batch_size": 512,
+            "updates_per_step": 0.5,
             "frames_per_batch": 1_000,
             "normalize_observation": True,
             "total_steps": 1_000_000,
