@@ -217,9 +217,11 @@ def build_parser() -> argparse.ArgumentParser:
     ff.add_argument("--current", type=float, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y"))
     ff.set_defaults(func=cmd_filter_figure)
 
+    from dockingrl.filter_cli import add_filter_commands
     from dockingrl.train_cli import add_training_commands
 
     add_training_commands(sub)
+    add_filter_commands(sub)
     return parser
 
 

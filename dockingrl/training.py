@@ -29,27 +29,31 @@ class RunLogger:
     """Namespaced scalars (``train/``, ``eval/``, ``losses/``, ``time/``) to wandb (offline by
     default) or TorchRL's CSV logger, plus a local ``curves.csv`` kept whatever the choice."""
 
-    def __init__(self, cfg: TrainConfig, run_dir: Path, run_id: str) -> None:
+    def __init__(
+        self, config: dict, kind: str, run_dir: Path, run_id: str, online: bool = False
+    ) -> None:
         self.curves = run_dir / "curves.csv"
         self.backend = None
-        if cfg.logger == "wandb":
+        if kind == "wandb":
             from torchrl.record.loggers import WandbLogger
 
             self.backend = WandbLogger(
                 exp_name=run_dir.name,
-                offline=not cfg.wandb_online,
+                offline=not online,
                 save_dir=str(run_dir),
                 id=run_id,
                 project="dockingrl",
-                config=cfg.to_dict(),
+                config=config,
                 resume="allow",
                 log_env_packages=False,
             )
-        elif cfg.logger == "csv":
+        elif kind == "csv":
             from torchrl.record.loggers import CSVLogger
 
             self.backend = CSVLogger(exp_name=run_dir.name, log_dir=str(run_dir / "csv"))
-            self.backend.log_hparams(cfg.to_dict())
+            self.backend.log_hparams(config)
+        elif kind != "none":
+            raise ValueError(f"unknown logger {kind!r}; valid: wandb, csv, none")
 
     def log(self, metrics: dict[str, float], step: int) -> None:
         if self.backend is not None:
@@ -85,6 +89,23 @@ def read_curves(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
     return curves
 
 
+def env_kwargs(cfg: TrainConfig) -> dict:
+    """The :func:`~dockingrl.make_env` options a training config implies (sensor-noise
+    scaling, learned filter parameters)."""
+    from dockingrl.env import DockingConfig
+
+    base = DockingConfig()
+    kwargs: dict = {
+        "config": base.replace(
+            range_noise_fraction=base.range_noise_fraction * cfg.range_noise_scale,
+            bearing_noise=base.bearing_noise * cfg.bearing_noise_scale,
+        )
+    }
+    if cfg.filter_params:
+        kwargs["filter_params"] = cfg.filter_params
+    return kwargs
+
+
 def default_run_name(cfg: TrainConfig) -> str:
     return f"dockingrl__{cfg.algo}__{cfg.scenario}__{cfg.seed}__{int(time.time())}"
 
@@ -104,7 +125,8 @@ class Trainer:
         self.next_checkpoint = cfg.checkpoint_every or None
         self.last_success = float("nan")
         self.run_id = run_dir.name.replace("__", "-")[-60:]
-        probe = make_env(cfg.scenario, 1, seed=0)
+        self.env_kwargs = env_kwargs(cfg)
+        probe = make_env(cfg.scenario, 1, seed=0, **self.env_kwargs)
         sim = base_env(probe)
         self.obs_dim = probe.observation_spec["observation"].shape[-1]
         self.action_spec = probe.action_spec[0].clone()
@@ -175,6 +197,7 @@ class Trainer:
             self.cfg.eval_episodes,
             seed=1_000_000 + self.frames,
             device=self.cfg.device,
+            **self.env_kwargs,
         )
         self.last_success = m["success_rate"]
         return {
@@ -216,6 +239,7 @@ class Trainer:
             device=cfg.device,
             compile=cfg.compile,
             transforms=[RewardSum()],
+            **self.env_kwargs,
         )
         collector = self._collector(env)
         bar = None
@@ -304,6 +328,7 @@ class Trainer:
             seed=cfg.seed + 10_000,
             device=cfg.device,
             progress=self.progress,
+            **self.env_kwargs,
         )
         final.update(algo=cfg.algo, policy=str(self.run_dir / "policy.pt"), command=self.command)
         write_json(self.run_dir / "eval.json", final)
@@ -391,7 +416,7 @@ def train(
     trainer = Trainer(cfg, run_dir, progress=progress, command=command)
     if resume is not None and not trainer.load_checkpoint():
         raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints to resume from")
-    logger = RunLogger(cfg, run_dir, trainer.run_id)
+    logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
     if trainer.frames < cfg.total_steps:
         trainer.run(logger)
     result = trainer.finish(logger)

@@ -44,6 +44,13 @@ class TrainConfig:
         "scale the range by 1/max_dist inside the networks (not in the paper)", default=False
     )
     hidden: tuple[int, ...] = _doc("hidden layer sizes of actor and critic", default=(256, 256))
+    range_noise_scale: float = _doc(
+        "env's USBL range noise x this (filter keeps Table 2)", default=1.0
+    )
+    bearing_noise_scale: float = _doc(
+        "env's USBL bearing noise x this (filter keeps Table 2)", default=1.0
+    )
+    filter_params: str = _doc("learned Q/R file for the EKF (dockingrl learn-filter)", default="")
 
     algo: str = ""  # set by the subclasses
 
@@ -67,6 +74,11 @@ class TrainConfig:
                 fail(name, "must be >= 1")
         if self.checkpoint_every < 0:
             fail("checkpoint_every", "must be >= 0")
+        for name in ("range_noise_scale", "bearing_noise_scale"):
+            if not getattr(self, name) > 0:
+                fail(name, "must be > 0")
+        if self.filter_params and self.scenario not in ("filtered", "compound"):
+            fail("filter_params", f"scenario {self.scenario!r} has no filter")
         if not self.hidden or any(h < 1 for h in self.hidden):
             fail("hidden", "needs positive layer sizes")
         for f in fields(self):

@@ -49,7 +49,8 @@ class ProcessNoise(nn.Module):
     def forward(self) -> torch.Tensor:
         L = self.cholesky_factor()
         eye = torch.eye(STATE_DIM, dtype=L.dtype, device=L.device)
-        return L @ L.T + self.eps * eye
+        Q = L @ L.T
+        return 0.5 * (Q + Q.T) + self.eps * eye
 
 
 class MeasurementNoise(nn.Module):

@@ -1,0 +1,117 @@
+import json
+
+import pytest
+import torch
+
+from dockingrl.cli import main as cli_main
+from dockingrl.env import DockingConfig
+from dockingrl.filter_learning import (
+    FilterFit,
+    evaluate_filter,
+    fit_filter,
+    mismatched_config,
+    record_rollouts,
+    run_filter,
+)
+from dockingrl.scenarios import make_filter
+from dockingrl.transforms import EKFTransform, MeasurementNoise, ProcessNoise
+
+
+@pytest.fixture(scope="module")
+def rollouts():
+    return record_rollouts(16, 120, seed=0)
+
+
+def test_rollouts_mark_episode_starts(rollouts):
+    assert rollouts.shape == (120, 16)
+    assert (rollouts["step_count"][0] == 0).all()
+    assert torch.equal(
+        rollouts["step_count"][1:] - rollouts["step_count"][:-1],
+        torch.ones(119, 16, dtype=torch.int64),
+    )
+
+
+@pytest.mark.parametrize("objective", ["nll", "supervised"])
+def test_a_few_steps_reduce_the_objective(objective, rollouts):
+    ekf = make_filter(DockingConfig())
+    fit = FilterFit(objective=objective, window=40, epochs=1, lr=0.05)
+    with torch.no_grad():
+        before = run_filter(ekf, rollouts[:40], objective=objective)[3].item()
+    history = fit_filter(ekf, fit, data=rollouts[:40].clone())
+    for _ in range(5):
+        history += fit_filter(ekf, fit, data=rollouts[:40].clone())
+    with torch.no_grad():
+        after = run_filter(ekf, rollouts[:40], objective=objective)[3].item()
+    assert history[0] == pytest.approx(before, rel=1e-5)
+    assert after < before
+    assert not any(p.requires_grad for p in ekf.noise_parameters()), "frozen again after fitting"
+
+
+def test_positive_definite_parameterisation_survives_any_parameters():
+    gen = torch.Generator().manual_seed(0)
+    q, r = ProcessNoise(), MeasurementNoise()
+    for _ in range(500):  # sigmas from 1e-3 to 7, random correlations
+        with torch.no_grad():
+            q.log_diag.copy_(torch.rand(5, generator=gen) * 9 - 7)
+            q.off_diag.copy_(torch.randn(10, generator=gen) * 0.05)
+            r.log_std.copy_(torch.rand(6, generator=gen) * 9 - 7)
+        Q = q().double()
+        assert torch.equal(Q, Q.T)
+        assert torch.linalg.eigvalsh(Q).min() > 0
+        assert (r(torch.rand(7) * 30).double() > 0).all()
+
+
+def test_learned_parameters_round_trip_through_the_cli(tmp_path):
+    out = tmp_path / "nll"
+    code = cli_main(
+        [
+            "learn-filter",
+            "--objective",
+            "nll",
+            "--num-envs",
+            "8",
+            "--steps",
+            "80",
+            "--window",
+            "20",
+            "--epochs",
+            "1",
+            "--out",
+            str(out),
+            "--logger",
+            "csv",
+            "--threads",
+            "1",
+        ]
+    )
+    assert code == 0
+    report = json.loads((out / "eval.json").read_text())
+    loaded = EKFTransform().load_filter_params(out / "filter_params.pt")
+    torch.testing.assert_close(loaded.measurement_noise.std(), torch.tensor(report["R_sigma"]))
+    torch.testing.assert_close(
+        loaded.process_noise().diagonal().sqrt(), torch.tensor(report["Q_sigma"])
+    )
+    assert (out / "curves.csv").stat().st_size > 0
+
+
+def test_filter_evaluation_reports_rmse_and_nees(rollouts):
+    report = evaluate_filter(make_filter(DockingConfig()), rollouts)
+    assert report["samples"] > 1000
+    for key in ("rmse_position_m", "rmse_heading_rad", "rmse_surge_m_s", "rmse_yaw_rate_rad_s"):
+        assert 0 < report[key] < 1
+    low, high = report["nees_mean_bounds_95"]
+    assert low < 5 < high
+    assert report["nees_step_bounds_95"][0] == pytest.approx(0.831, abs=0.05)
+    assert report["nees_step_bounds_95"][1] == pytest.approx(12.83, abs=0.1)
+
+
+def test_mismatched_condition_and_bad_options():
+    cfg = mismatched_config(2.0)
+    base = DockingConfig()
+    assert cfg.range_noise_fraction == 2 * base.range_noise_fraction
+    assert cfg.bearing_noise == 2 * base.bearing_noise
+    assert cfg.heading_noise == base.heading_noise
+    with pytest.raises(ValueError, match="objective"):
+        fit_filter(make_filter(base), FilterFit(objective="mse"))
+    with pytest.raises(ValueError, match="behaviour"):
+        record_rollouts(2, 10, behaviour="drunk")
