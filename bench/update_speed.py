@@ -3,6 +3,9 @@ plain-PyTorch implementation of the same update, in the same process.
 
 Usage: ``python bench/update_speed.py [--seconds 5] [--threads 2] [--algos sac td3 ppo]``
 
+Each is also run through ``torch.compile`` (TorchRL: the agent's ``compile_update`` option, which
+compiles forward and backward of the loss; plain: the whole update function).
+
 SAC and TD3: one update = one minibatch of 256 transitions from a replay buffer (critics,
 actor, target networks). PPO: one update = one minibatch of 64 of a rollout (clipped objective,
 value loss, gradient clipping). Observations are the compound ones (12 numbers).
@@ -56,9 +59,9 @@ def rate(step, seconds: float) -> float:
 
 
 # -- TorchRL -------------------------------------------------------------------------------
-def torchrl_update(algo: str):
+def torchrl_update(algo: str, compile_update: bool = False):
     env = make_env("compound", 1, seed=0)
-    cfg = make_config(algo, "paper")
+    cfg = make_config(algo, "paper", compile_update=compile_update)
     agent = make_agent(cfg, OBS, env.action_spec[0], 30.0)
     if algo == "ppo":
         data = transitions(64 * 32)
@@ -73,10 +76,8 @@ def torchrl_update(algo: str):
         def step():
             i = next(index) % 32
             batch = data[i * 64 : (i + 1) * 64]
-            out = agent.loss(batch)
-            total = out["loss_objective"] + out["loss_critic"]
             optim.zero_grad(set_to_none=True)
-            total.backward()
+            agent._gradients("ppo", batch)
             torch.nn.utils.clip_grad_norm_(params, 0.5)
             optim.step()
 
@@ -223,12 +224,24 @@ def main(argv=None) -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     print(f"machine: {describe_machine()}")
-    print("| algorithm | TorchRL updates/s | plain PyTorch updates/s | TorchRL time / plain time |")
-    print("|---|---|---|---|")
+    print(
+        "| algorithm | TorchRL updates/s | TorchRL, compile_update | plain PyTorch updates/s | "
+        "plain, torch.compile | TorchRL time / plain time | compiled TorchRL / plain |"
+    )
+    print("|---|---|---|---|---|---|---|")
     for algo in args.algos:
         ours = rate(torchrl_update(algo), args.seconds)
         plain = rate(PLAIN[algo](), args.seconds)
-        print(f"| {algo} | {ours:,.0f} | {plain:,.0f} | {plain / ours:.2f}x |")
+        if algo == "ppo":  # compiling ClipPPOLoss did not finish within 10 minutes here
+            print(f"| {algo} | {ours:,.0f} | - | {plain:,.0f} | - | {plain / ours:.2f}x | - |")
+            continue
+        ours_compiled = rate(torchrl_update(algo, compile_update=True), args.seconds)
+        plain_compiled = rate(torch.compile(PLAIN[algo]()), args.seconds)
+        print(
+            f"| {algo} | {ours:,.0f} | {ours_compiled:,.0f} | {plain:,.0f} | "
+            f"{plain_compiled:,.0f} | {plain / ours:.2f}x | {plain / ours_compiled:.2f}x |"
+        )
+    print("(compiled rates exclude the compilation, done during the warm-up)")
 
 
 if __name__ == "__main__":

@@ -156,36 +156,65 @@ class Agent:
                 logs.setdefault(key, []).append(value)
         return {k: sum(v) / len(v) for k, v in logs.items()}
 
+    def _gradients(self, name: str, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Forward and backward of one loss (``name``: ``sac``, ``critic``, ``actor`` or
+        ``ppo``); returns the detached logged values. With ``compile_update`` each of these
+        runs through ``torch.compile`` (built on first use)."""
+        compiled = self.extra.setdefault("compiled", {})
+        if name not in compiled:
+            fn = getattr(self, f"_grad_{name}")
+            compiled[name] = torch.compile(fn) if self.config.compile_update else fn
+        return compiled[name](batch)
+
+    def _grad_sac(self, batch):
+        out = self.loss(batch)
+        total = out["loss_actor"] + out["loss_qvalue"]
+        if self.config.learn_alpha:
+            total = total + out["loss_alpha"]
+        total.backward()
+        return {k: out[k].detach() for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}
+
+    def _grad_critic(self, batch):
+        loss, _ = self.loss.value_loss(batch)
+        loss.backward()
+        return {"loss_qvalue": loss.detach()}
+
+    def _grad_actor(self, batch):
+        loss, _ = self.loss.actor_loss(batch)
+        loss.backward()
+        return {"loss_actor": loss.detach()}
+
+    def _grad_ppo(self, batch):
+        out = self.loss(batch)
+        total = out["loss_objective"] + out["loss_critic"]
+        if "loss_entropy" in out.keys():
+            total = total + out["loss_entropy"]
+        total.backward()
+        keys = ("loss_objective", "loss_critic", "clip_fraction", "kl_approx")
+        return {k: out[k].detach() for k in keys if k in out.keys()}
+
     def _off_policy_update(self) -> dict[str, float]:
         batch = self.replay_buffer.sample()
         cfg, opt = self.config, self.optimizers
         self.updates += 1
         if cfg.algo == "sac":
-            out = self.loss(batch)
-            total = out["loss_actor"] + out["loss_qvalue"]
-            if cfg.learn_alpha:
-                total = total + out["loss_alpha"]
             for o in opt.values():
                 o.zero_grad(set_to_none=True)
-            total.backward()
+            logs = self._gradients("sac", batch)
             for o in opt.values():
                 o.step()
             self.target_updater.step()
-            return {k: _scalar(out[k]) for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}
+            return {k: _scalar(v) for k, v in logs.items()}
         # TD3: the critics every update, the actor and the targets every policy_delay updates
-        q_loss, _ = self.loss.value_loss(batch)
         opt["critic"].zero_grad(set_to_none=True)
-        q_loss.backward()
+        logs = self._gradients("critic", batch)
         opt["critic"].step()
-        logs = {"loss_qvalue": _scalar(q_loss)}
         if self.updates % cfg.policy_delay == 0:
-            a_loss, _ = self.loss.actor_loss(batch)
             opt["actor"].zero_grad(set_to_none=True)
-            a_loss.backward()
+            logs.update(self._gradients("actor", batch))
             opt["actor"].step()
             self.target_updater.step()
-            logs["loss_actor"] = _scalar(a_loss)
-        return logs
+        return {k: _scalar(v) for k, v in logs.items()}
 
     def _learn_ppo(self, data: TensorDictBase) -> dict[str, float]:
         cfg, optim = self.config, self.optimizers["all"]
@@ -199,18 +228,13 @@ class Agent:
             order = torch.randperm(frames, generator=self.extra["generator"])
             for start in range(0, frames, cfg.minibatch_size):
                 batch = flat[order[start : start + cfg.minibatch_size]]
-                out = self.loss(batch)
-                total = out["loss_objective"] + out["loss_critic"]
-                if "loss_entropy" in out.keys():
-                    total = total + out["loss_entropy"]
                 optim.zero_grad(set_to_none=True)
-                total.backward()
+                out = self._gradients("ppo", batch)
                 torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                 optim.step()
                 self.updates += 1
-                for key in ("loss_objective", "loss_critic", "clip_fraction", "kl_approx"):
-                    if key in out.keys():
-                        logs.setdefault(key, []).append(_scalar(out[key]))
+                for key, value in out.items():
+                    logs.setdefault(key, []).append(_scalar(value))
         return {k: sum(v) / len(v) for k, v in logs.items()}
 
     # -- checkpoints -----------------------------------------------------------------------

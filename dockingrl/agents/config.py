@@ -40,6 +40,7 @@ class TrainConfig:
     threads: int = _doc("torch CPU threads", default=2)
     device: str = _doc("torch device", default="cpu")
     compile: bool = _doc("torch.compile the env and filter steps", default=False)
+    compile_update: bool = _doc("torch.compile the gradient step (~20 s to compile)", default=False)
     normalize_observation: bool = _doc(
         "scale the range by 1/max_dist inside the networks (not in the paper)", default=False
     )
@@ -175,6 +176,11 @@ class PPOConfig(TrainConfig):
             )
         if self.epochs < 1:
             raise ValueError("PPOConfig.epochs: must be >= 1")
+        if self.compile_update:
+            raise ValueError(
+                "PPOConfig.compile_update: not available for PPO (compiling ClipPPOLoss did not "
+                "finish within 10 minutes on a 2-core CPU)"
+            )
 
 
 def _check_off_policy(cfg) -> None:
