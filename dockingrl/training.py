@@ -19,7 +19,7 @@ from dockingrl.agents.algorithms import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
 from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
-from dockingrl.io import write_json
+from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import make_env
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
@@ -187,7 +187,23 @@ class Trainer:
         )
         self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
         torch.set_rng_state(state["torch_rng"])
+        self._drop_curves_after(self.frames)
         return True
+
+    def _drop_curves_after(self, frames: int) -> None:
+        """Forget what was logged after the checkpoint: those steps are trained again."""
+        path = self.run_dir / "curves.csv"
+        if not path.exists():
+            return
+        with path.open() as f:
+            rows = list(csv.reader(f))
+        kept = [rows[0]] + [row for row in rows[1:] if int(row[0]) <= frames]
+
+        def write(tmp: Path) -> None:
+            with tmp.open("w", newline="") as f:
+                csv.writer(f).writerows(kept)
+
+        atomic_write(path, write)
 
     # -- evaluation ------------------------------------------------------------------------
     def periodic_eval(self) -> dict[str, float]:
