@@ -21,6 +21,7 @@ from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import make_env
+from dockingrl.transforms import ContactSpeedPenalty
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
 
@@ -104,6 +105,15 @@ def env_kwargs(cfg: TrainConfig) -> dict:
     if cfg.filter_params:
         kwargs["filter_params"] = cfg.filter_params
     return kwargs
+
+
+def training_transforms(cfg: TrainConfig) -> list:
+    """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
+    the paper's eq. 12), then the optional contact-speed term the agent learns from."""
+    transforms = [RewardSum()]
+    if cfg.contact_speed_penalty > 0:
+        transforms.append(ContactSpeedPenalty(cfg.contact_speed_penalty, cfg.contact_speed_target))
+    return transforms
 
 
 def default_run_name(cfg: TrainConfig) -> str:
@@ -254,7 +264,7 @@ class Trainer:
             seed=cfg.seed * 1_000_003 + self.frames,
             device=cfg.device,
             compile=cfg.compile,
-            transforms=[RewardSum()],
+            transforms=training_transforms(cfg),
             **self.env_kwargs,
         )
         collector = self._collector(env)

@@ -115,3 +115,50 @@ def test_mismatched_condition_and_bad_options():
         fit_filter(make_filter(base), FilterFit(objective="mse"))
     with pytest.raises(ValueError, match="behaviour"):
         record_rollouts(2, 10, behaviour="drunk")
+
+
+def test_run_averaged_nees_test_accepts_consistent_and_rejects_overconfident_errors():
+    from dockingrl.filter_learning import run_averaged_nees_test
+
+    gen = torch.Generator().manual_seed(0)
+    chi2 = torch.randn(400, 128, 5, generator=gen, dtype=torch.float64).pow(2).sum(-1)
+    keep = torch.rand(400, 128, generator=gen) > 0.05
+    consistent = run_averaged_nees_test(chi2, keep)
+    assert 0.92 <= consistent <= 0.98
+    assert run_averaged_nees_test(1.3 * chi2, keep) < 0.2  # covariance 30 % too small
+    assert run_averaged_nees_test(0.7 * chi2, keep) < 0.2  # 30 % too large
+
+
+def test_supervised_objective_is_the_gaussian_likelihood_of_the_truth():
+    from dockingrl.filter_learning import gaussian_nll
+
+    gen = torch.Generator().manual_seed(1)
+    A = torch.randn(7, 5, 5, generator=gen, dtype=torch.float64)
+    cov = A @ A.transpose(-1, -2) + 0.1 * torch.eye(5, dtype=torch.float64)
+    residual = torch.randn(7, 5, generator=gen, dtype=torch.float64)
+    reference = torch.distributions.MultivariateNormal(torch.zeros(5, dtype=torch.float64), cov)
+    constant = 2.5 * torch.log(torch.tensor(2 * torch.pi, dtype=torch.float64))
+    torch.testing.assert_close(
+        gaussian_nll(residual, cov), -reference.log_prob(residual) - constant
+    )
+
+
+def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path):
+    params = tmp_path / "nll.pt"
+    from dockingrl.transforms.params import save_filter_params
+
+    save_filter_params(make_filter(DockingConfig()), params, objective="nll")
+    tiny = ["num_envs=4", "steps_per_env=32", "minibatch_size=64", "epochs=1"]
+    tiny += ["eval_every=10000", "final_eval_episodes=4", "threads=1", "checkpoint_every=0"]
+    code = cli_main(
+        ["ppo-filter-comparison", "--filter-params", str(params), "--total-steps", "128"]
+        + ["--out", str(tmp_path / "res"), "--runs", str(tmp_path / "runs"), "--set", *tiny]
+    )
+    assert code == 0
+    report = json.loads((tmp_path / "res" / "ppo_mismatch.json").read_text())
+    assert len(report["agents"]) == 2
+    for agent in report["agents"].values():
+        assert agent["frames"] >= 128 and 0 <= agent["success_rate"] <= 100
+    assert "| learned: " in (tmp_path / "res" / "ppo_mismatch.md").read_text()
+    with pytest.raises(SystemExit, match="hidden"):
+        cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "hidden=3"])

@@ -246,3 +246,42 @@ def test_wandb_offline_logging(tmp_path, monkeypatch):
     train(cfg, progress=False)
     offline = list((tmp_path / "ppo_noise" / "wandb").glob("offline-run-*"))
     assert offline, "wandb wrote no offline run"
+
+
+def test_ppo_reward_scale_scales_the_learning_signal_not_the_data(tmp_path):
+    """``reward_scale`` multiplies the rewards GAE and the critic see; the collected data (and
+    so the logged episode rewards) keep the paper's scale."""
+    from torchrl.collectors import Collector
+
+    from dockingrl.agents.algorithms import make_agent
+    from dockingrl.scenarios import make_env
+
+    def critic_loss(scale):
+        torch.manual_seed(0)
+        cfg = tiny_config("ppo", "compound", tmp_path, reward_scale=scale, epochs=1)
+        env = make_env("compound", 8, seed=1)
+        agent = make_agent(cfg, 12, env.action_spec[0].clone(), 30.0)
+        collector = Collector(
+            env,
+            agent.exploration_policy,
+            frames_per_batch=256,
+            total_frames=256,
+            auto_register_policy_transforms=False,
+        )
+        data = next(iter(collector))
+        collector.shutdown()
+        reward = data["next", "reward"].clone()
+        losses = agent.learn(data)
+        assert torch.equal(data["next", "reward"], reward)
+        return losses["loss_critic"]
+
+    # with the same networks and data, the value targets shrink by the scale
+    assert critic_loss(0.1) < 0.2 * critic_loss(1.0)
+
+
+def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path):
+    cfg = tiny_config("ppo", "compound", tmp_path, reward_scale=0.1, contact_speed_penalty=2000.0)
+    result = train(cfg, progress=False)
+    assert result["summary"]["updates"] > 0
+    saved = json.loads((tmp_path / "ppo_compound" / "config.json").read_text())
+    assert saved["contact_speed_penalty"] == 2000.0 and saved["reward_scale"] == 0.1

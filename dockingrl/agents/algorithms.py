@@ -220,6 +220,10 @@ class Agent:
         cfg, optim = self.config, self.optimizers["all"]
         params = list(self.loss.parameters())
         frames = data.numel()
+        if cfg.reward_scale != 1.0:
+            data = data.clone(recurse=False)
+            data["next"] = data["next"].clone(recurse=False)
+            data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
         logs: dict[str, list[float]] = {}
         for _ in range(cfg.epochs):
             with torch.no_grad():

@@ -16,9 +16,11 @@ from dockingrl.transforms.filtering import (
     MeasurementNoise,
     ProcessNoise,
 )
+from dockingrl.transforms.shaping import ContactSpeedPenalty
 
 __all__ = [
     "CompoundObservation",
+    "ContactSpeedPenalty",
     "EKFTransform",
     "MeasurementNoise",
     "ProcessNoise",

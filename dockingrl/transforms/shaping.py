@@ -1,0 +1,54 @@
+"""A training-time reward term that makes the safety limit on the contact speed part of what the
+agent optimises (not in the paper).
+
+The paper's reward (eqs. 4-12) penalises ground speed above ``v_max`` only through the dense
+term of eq. 6, whose weight is small next to the contact reward ``200 g`` of eq. 11. In our env
+a PPO agent that maximises it learns to enter the funnel at 0.5-0.6 m/s with an excellent
+entry angle: +50 mean episode reward (more than the paper's successful agents) and almost no
+successes, since success needs ``V <= v_max`` at contact (``docs/choices.md``). This transform
+adds, on the contact step only, a hinge on the contact speed, so that the reward agrees with the
+success criterion. It changes what the agent learns from, not the env: evaluation, logged
+episode rewards (``RewardSum`` placed before it) and the paper's metrics are untouched.
+"""
+
+from __future__ import annotations
+
+from tensordict import TensorDictBase
+from torchrl.envs import Transform
+
+
+class ContactSpeedPenalty(Transform):
+    """Adds ``-weight * max(V_contact - target_speed, 0)`` to ``reward`` on the contact step.
+
+    ``V_contact`` is the env's ``contact_speed`` entry (ground speed at contact, 0 on every
+    other step), so the term is zero except when the AUV touches the docking station too fast.
+
+    Args:
+        weight: penalty per m/s above ``target_speed`` (reward units per m/s); 0 disables it.
+        target_speed: ground speed above which the penalty starts, m/s. A little below the
+            success limit ``v_max = 0.3`` leaves room for sensor noise and the current.
+
+    Examples:
+        >>> from dockingrl import make_env
+        >>> from torchrl.envs import RewardSum
+        >>> env = make_env("compound", 8, transforms=[RewardSum(), ContactSpeedPenalty(2000.0)])
+    """
+
+    def __init__(self, weight: float, target_speed: float = 0.27) -> None:
+        if not weight >= 0:
+            raise ValueError(f"weight must be >= 0, got {weight!r}")
+        if not target_speed > 0:
+            raise ValueError(f"target_speed must be > 0, got {target_speed!r}")
+        super().__init__(in_keys=["reward", "contact_speed"], out_keys=["reward"])
+        self.weight = float(weight)
+        self.target_speed = float(target_speed)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        excess = (next_tensordict.get("contact_speed") - self.target_speed).clamp_min(0.0)
+        next_tensordict.set("reward", next_tensordict.get("reward") - self.weight * excess)
+        return next_tensordict
+
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        return tensordict_reset

@@ -1,0 +1,69 @@
+import pytest
+import torch
+from torchrl.envs import RewardSum
+from torchrl.envs.utils import check_env_specs
+
+from dockingrl import make_env
+from dockingrl.agents.config import make_config
+from dockingrl.evaluation import base_env
+from dockingrl.training import training_transforms
+from dockingrl.transforms import ContactSpeedPenalty
+
+WEIGHT, TARGET = 2000.0, 0.27
+
+
+def fast_contact_rollout(transforms):
+    """Two envs start 1.5 m in front of the funnel with a following current and full surge:
+    both touch the station within a few steps at well over 0.3 m/s."""
+    env = make_env("compound", 2, seed=3, transforms=transforms)
+    base_env(env).set_initial_state(
+        pose=torch.tensor([-2.3, 0.0, 0.0]), ocean_current=torch.tensor([0.3, 0.0])
+    )
+    action = torch.tensor([[0.8, 0.0], [0.6, 0.0]])
+    td = env.reset()
+    steps = []
+    for _ in range(40):
+        td["action"] = action
+        td = env.step(td)
+        steps.append(td["next"].clone())
+        if bool(td["next", "done"].all()):
+            break
+        td = td["next"].clone()
+    return torch.stack(steps)
+
+
+def test_penalty_applies_on_the_contact_step_only_and_leaves_episode_reward_alone():
+    plain = fast_contact_rollout([RewardSum()])
+    shaped = fast_contact_rollout([RewardSum(), ContactSpeedPenalty(WEIGHT, TARGET)])
+    contact = plain["terminated"].squeeze(-1)
+    assert bool(contact[-1].all())  # both envs docked, too fast
+    speed = plain["contact_speed"].squeeze(-1)
+    assert bool((speed[-1] > 0.35).all())
+    difference = (shaped["reward"] - plain["reward"]).squeeze(-1)
+    expected = -WEIGHT * (speed - TARGET).clamp_min(0.0)
+    torch.testing.assert_close(difference, expected, rtol=1e-5, atol=1e-3)
+    assert bool((difference[~contact] == 0).all())
+    # RewardSum placed before the penalty keeps logging the paper's reward (eq. 12)
+    torch.testing.assert_close(shaped["episode_reward"], plain["episode_reward"])
+
+
+def test_env_specs_hold_with_the_penalty():
+    check_env_specs(make_env("noise", 4, seed=0, transforms=[ContactSpeedPenalty(WEIGHT)]))
+
+
+def test_training_transforms_follow_the_config():
+    paper = training_transforms(make_config("ppo"))
+    assert [type(t).__name__ for t in paper] == ["RewardSum"]
+    shaped = training_transforms(make_config("ppo", contact_speed_penalty=500.0))
+    assert isinstance(shaped[-1], ContactSpeedPenalty) and shaped[-1].weight == 500.0
+
+
+@pytest.mark.parametrize("kwargs", [{"weight": -1.0}, {"weight": 1.0, "target_speed": 0.0}])
+def test_bad_penalty_arguments_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        ContactSpeedPenalty(**kwargs)
+
+
+def test_bad_penalty_config_is_refused():
+    with pytest.raises(ValueError, match="contact_speed_penalty"):
+        make_config("sac", contact_speed_penalty=-5.0)
