@@ -306,7 +306,8 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
             f"Command: `{command_line()}`",
             "",
             f"Each agent: `--preset fast`, {args.total_steps} env steps, seed 0, trained and "
-            "evaluated (500 episodes) in the mismatched env. Data: `ppo_mismatch.json`.",
+            "evaluated (500 episodes) in the mismatched env. Data: `ppo_mismatch.json`. "
+            f"Machine: {summary['machine']}.",
             "",
             "| filter in the compound observation | success % | total reward | "
             "timeouts / missed funnel / too fast | training wall-clock s |",
