@@ -44,18 +44,19 @@ def footer_text(extra: str = "") -> str:
 
 def load_policy(spec: str, *, use_filter: bool = False):
     """``managed_surge`` or the path of a policy saved by training. Returns
-    ``(policy, name, scenario or None)``."""
+    ``(policy, name, scenario or None, make_env options the policy was trained with)``."""
     if spec == "managed_surge":
         from dockingrl.agents.managed_surge import ManagedSurgePolicy
 
-        return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None
+        return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}
     path = Path(spec)
     if not path.exists():
         raise SystemExit(f"error: --policy {spec!r} is neither 'managed_surge' nor a file")
     from dockingrl.agents.saving import load_policy as load_saved
 
     policy, meta = load_saved(path)
-    return policy, meta.get("algo", "agent"), meta.get("scenario")
+    options = {"observe_current": True} if meta["config"].get("observe_current") else {}
+    return policy, meta.get("algo", "agent"), meta.get("scenario"), options
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -64,10 +65,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from dockingrl.plots import plot_success_map, plot_trajectories
 
     torch.set_num_threads(args.threads)
-    policy, name, trained_scenario = load_policy(args.policy, use_filter=args.use_filter)
+    policy, name, trained_scenario, options = load_policy(
+        args.policy, use_filter=args.use_filter
+    )
     scenario = args.scenario or trained_scenario or "noise"
     config = DockingConfig(contact_speed_tolerance=args.speed_tolerance)
-    env_kwargs = {"config": config}
+    env_kwargs = {"config": config, **options}
     if args.filter_params:
         env_kwargs["filter_params"] = args.filter_params
     out = Path(args.out) if args.out else None

@@ -39,6 +39,7 @@ def make_env(
     ekf_kwargs: dict | None = None,
     transforms: Sequence[Transform] = (),
     compile: bool = False,
+    observe_current: bool = False,
 ) -> TransformedEnv:
     """Build one of the paper's four scenarios (Sec. 4) as a ``TransformedEnv``.
 
@@ -60,6 +61,10 @@ def make_env(
         transforms: more transforms appended after the scenario's own (e.g. a normaliser).
         compile: ``torch.compile`` the simulation and filter steps (faster for thousands of
             envs; the first step compiles, about half a minute on a 2-core CPU).
+        observe_current: append the ocean current ``(oc_x, oc_y)`` (DS frame, m/s) to
+            ``observation`` (+2 entries, last). Not in the paper: its policies see ground
+            velocities only, although its EKF assumes the current known (Sec. 3.5, from the
+            DVL's water track); this gives the policy the same knowledge.
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
@@ -78,5 +83,7 @@ def make_env(
         stages += [ekf, CompoundObservation(keys)]
     elif filter_params is not None or ekf_kwargs:
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
+    if observe_current:
+        stages.append(CompoundObservation(["observation", "ocean_current"]))
     stages += list(transforms)
     return TransformedEnv(base, Compose(*stages))

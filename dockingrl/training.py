@@ -104,6 +104,8 @@ def env_kwargs(cfg: TrainConfig) -> dict:
     }
     if cfg.filter_params:
         kwargs["filter_params"] = cfg.filter_params
+    if cfg.observe_current:
+        kwargs["observe_current"] = True
     return kwargs
 
 

@@ -215,6 +215,7 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
         "--no-progress",
         "--threads",
         "1",
+        "--observe-current",
     ]
     assert cli_main(args) == 0
     assert "final 4-episode success" in capsys.readouterr().out
@@ -236,6 +237,9 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
     )
     metrics = json.loads((out / "eval.json").read_text())
     assert metrics["scenario"] == "filtered" and metrics["episodes"] == 5
+    # the saved policy reads 6 + 2 numbers: eval rebuilt the env with the current appended
+    _, info = load_policy(tmp_path / "cli" / "policy.pt")
+    assert info["config"]["observe_current"] is True
     with pytest.raises(SystemExit):
         cli_main(["train", "--algo", "ppo", "--start-steps", "5"])  # a SAC/TD3 option
 

@@ -36,6 +36,32 @@ def test_check_env_specs_all_scenarios(scenario, num_envs):
     assert env.observation_spec["observation"].shape == (num_envs, dims[scenario])
 
 
+@pytest.mark.parametrize("scenario", ["noise", "compound"])
+def test_observe_current_appends_the_current_last(scenario):
+    env = make_env(scenario, 16, seed=3, observe_current=True)
+    plain = make_env(scenario, 16, seed=3)
+    td, ref = env.reset(), plain.reset()
+    dim = ref["observation"].shape[-1]
+    assert td["observation"].shape == (16, dim + 2)
+    torch.testing.assert_close(td["observation"][:, dim:], td["ocean_current"])
+    torch.testing.assert_close(td["observation"][:, :dim], ref["observation"])
+    td = env.rand_step(td)
+    torch.testing.assert_close(td["next", "observation"][:, dim:], td["next", "ocean_current"])
+    check_env_specs(env)
+
+
+def test_observation_scale_leaves_the_current_alone():
+    from dockingrl.agents.algorithms import observation_scale
+
+    scale = observation_scale(14, 30.0, True)
+    expected = torch.ones(14)
+    expected[[0, 6]] = 1 / 30.0
+    assert torch.equal(scale, expected)
+    expected = torch.ones(8)
+    expected[0] = 1 / 30.0
+    assert torch.equal(observation_scale(8, 30.0, True), expected)
+
+
 def test_unknown_scenario_lists_the_valid_ones():
     with pytest.raises(ValueError, match="no_noise, noise, filtered, compound"):
         make_env("noisy")

@@ -59,10 +59,11 @@ class ObservationScale(nn.Module):
 
 
 def observation_scale(obs_dim: int, max_dist: float, normalize: bool) -> torch.Tensor:
-    """``1 / max_dist`` on every range entry (index 0 of each 6-block), 1 elsewhere."""
+    """``1 / max_dist`` on every range entry (index 0 of each full 6-block: the raw and the
+    filtered observation), 1 elsewhere (the optional ocean current after them included)."""
     scale = torch.ones(obs_dim)
     if normalize:
-        scale[0::6] = 1.0 / max_dist
+        scale[0 : 6 * (obs_dim // 6) : 6] = 1.0 / max_dist
     return scale
 
 

@@ -61,6 +61,11 @@ class TrainConfig:
         "ground speed (m/s) above which contact_speed_penalty applies", default=0.27
     )
 
+    observe_current: bool = _doc(
+        "append the ocean current (DS frame) to the policy's observation (not in the paper)",
+        default=False,
+    )
+
     algo: str = ""  # set by the subclasses
 
     def validate(self) -> None:
