@@ -112,9 +112,14 @@ def env_kwargs(cfg: TrainConfig) -> dict:
 def training_transforms(cfg: TrainConfig) -> list:
     """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
     the paper's eq. 12), then the optional contact-speed term the agent learns from."""
+    from dockingrl.env import DockingConfig
+
     transforms = [RewardSum()]
     if cfg.contact_speed_penalty > 0:
-        transforms.append(ContactSpeedPenalty(cfg.contact_speed_penalty, cfg.contact_speed_target))
+        cap = DockingConfig().contact_weight if cfg.contact_speed_penalty_cap else None
+        transforms.append(
+            ContactSpeedPenalty(cfg.contact_speed_penalty, cfg.contact_speed_target, cap)
+        )
     return transforms
 
 

@@ -47,6 +47,24 @@ def test_penalty_applies_on_the_contact_step_only_and_leaves_episode_reward_alon
     torch.testing.assert_close(shaped["episode_reward"], plain["episode_reward"])
 
 
+def test_capped_penalty_never_goes_below_a_miss():
+    plain = fast_contact_rollout([RewardSum()])
+    capped = fast_contact_rollout([RewardSum(), ContactSpeedPenalty(WEIGHT, TARGET, cap=200.0)])
+    contact = plain["terminated"].squeeze(-1)
+    speed = plain["contact_speed"].squeeze(-1)
+    score = plain["contact_score"].squeeze(-1)
+    difference = (capped["reward"] - plain["reward"]).squeeze(-1)
+    uncapped = WEIGHT * (speed - TARGET).clamp_min(0.0)
+    expected = -torch.minimum(uncapped, 200.0 * score.clamp_min(0.0))
+    torch.testing.assert_close(difference, expected, rtol=1e-5, atol=1e-3)
+    # at over 0.35 m/s the uncapped penalty exceeds the contact reward: the cap binds and the
+    # contact step keeps only the dense terms, as a step that misses the station would
+    assert bool((uncapped[-1] > 200.0 * score[-1]).all())
+    contact_reward = plain["reward"][-1].squeeze(-1) - 200.0 * score[-1]
+    torch.testing.assert_close(capped["reward"][-1].squeeze(-1), contact_reward, atol=1e-3, rtol=0)
+    assert bool((difference[~contact] == 0).all())
+
+
 def test_env_specs_hold_with_the_penalty():
     check_env_specs(make_env("noise", 4, seed=0, transforms=[ContactSpeedPenalty(WEIGHT)]))
 
@@ -56,9 +74,15 @@ def test_training_transforms_follow_the_config():
     assert [type(t).__name__ for t in paper] == ["RewardSum"]
     shaped = training_transforms(make_config("ppo", contact_speed_penalty=500.0))
     assert isinstance(shaped[-1], ContactSpeedPenalty) and shaped[-1].weight == 500.0
+    assert shaped[-1].cap is None
+    capped = make_config("ppo", contact_speed_penalty=500.0, contact_speed_penalty_cap=True)
+    assert training_transforms(capped)[-1].cap == 200.0
 
 
-@pytest.mark.parametrize("kwargs", [{"weight": -1.0}, {"weight": 1.0, "target_speed": 0.0}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"weight": -1.0}, {"weight": 1.0, "target_speed": 0.0}, {"weight": 1.0, "cap": 0.0}],
+)
 def test_bad_penalty_arguments_are_refused(kwargs):
     with pytest.raises(ValueError):
         ContactSpeedPenalty(**kwargs)

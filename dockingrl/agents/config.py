@@ -60,6 +60,11 @@ class TrainConfig:
     contact_speed_target: float = _doc(
         "ground speed (m/s) above which contact_speed_penalty applies", default=0.27
     )
+    contact_speed_penalty_cap: bool = _doc(
+        "cap the contact-speed penalty at the contact reward 200 max(g, 0), so a too-fast "
+        "contact never scores below a miss",
+        default=False,
+    )
 
     observe_current: bool = _doc(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",

@@ -13,6 +13,7 @@ episode rewards (``RewardSum`` placed before it) and the paper's metrics are unt
 
 from __future__ import annotations
 
+import torch
 from tensordict import TensorDictBase
 from torchrl.envs import Transform
 
@@ -27,6 +28,10 @@ class ContactSpeedPenalty(Transform):
         weight: penalty per m/s above ``target_speed`` (reward units per m/s); 0 disables it.
         target_speed: ground speed above which the penalty starts, m/s. A little below the
             success limit ``v_max = 0.3`` leaves room for sensor noise and the current.
+        cap: the contact reward ``r_g = contact_weight * g`` (eq. 11) at most, and nothing when
+            ``g <= 0``: a too-fast contact then never scores below missing the docking station
+            (``None``: no cap). With a large ``weight`` and no cap, an agent that cannot yet
+            dock slowly learns to avoid the station instead.
 
     Examples:
         >>> from dockingrl import make_env
@@ -34,18 +39,29 @@ class ContactSpeedPenalty(Transform):
         >>> env = make_env("compound", 8, transforms=[RewardSum(), ContactSpeedPenalty(2000.0)])
     """
 
-    def __init__(self, weight: float, target_speed: float = 0.27) -> None:
+    def __init__(
+        self, weight: float, target_speed: float = 0.27, cap: float | None = None
+    ) -> None:
         if not weight >= 0:
             raise ValueError(f"weight must be >= 0, got {weight!r}")
         if not target_speed > 0:
             raise ValueError(f"target_speed must be > 0, got {target_speed!r}")
-        super().__init__(in_keys=["reward", "contact_speed"], out_keys=["reward"])
+        if cap is not None and not cap > 0:
+            raise ValueError(f"cap (the contact weight) must be > 0 or None, got {cap!r}")
+        super().__init__(
+            in_keys=["reward", "contact_speed", "contact_score"], out_keys=["reward"]
+        )
         self.weight = float(weight)
         self.target_speed = float(target_speed)
+        self.cap = None if cap is None else float(cap)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         excess = (next_tensordict.get("contact_speed") - self.target_speed).clamp_min(0.0)
-        next_tensordict.set("reward", next_tensordict.get("reward") - self.weight * excess)
+        penalty = self.weight * excess
+        if self.cap is not None:
+            limit = self.cap * next_tensordict.get("contact_score").clamp_min(0.0)
+            penalty = torch.minimum(penalty, limit)
+        next_tensordict.set("reward", next_tensordict.get("reward") - penalty)
         return next_tensordict
 
     def _reset(
