@@ -10,6 +10,10 @@ vehicle neither is known. Two objectives:
   estimate, ``0.5 (e^T P^-1 e + log det P)`` with ``e`` the estimate's error (simulation only).
   It rewards a small error and a covariance ``P`` that states it honestly: at its optimum the
   mean NEES of the training data is the state dimension, 5.
+- ``mse``: the estimate's squared error against ``true_state`` alone,
+  ``sum_i log mean(e_i^2)`` over the five state components (simulation only). The log makes it
+  free of units (metres, radians, m/s, rad/s) and weighs a relative gain in each component
+  alike; it asks nothing of ``P``.
 
 Both run the differentiable filter of :mod:`dockingrl.transforms.ekf` over recorded rollouts with
 truncated backpropagation through time (windows of ``window`` steps).
@@ -37,7 +41,7 @@ from dockingrl.transforms.ekf import (
 )
 from dockingrl.transforms.filtering import EKFTransform
 
-OBJECTIVES = ("nll", "supervised")
+OBJECTIVES = ("nll", "supervised", "mse")
 
 
 def gaussian_nll(residual: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
@@ -169,9 +173,17 @@ def run_filter(
         if objective == "supervised":
             nll = gaussian_nll(state_error(mean, data["true_state"][t]), cov)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
+        if objective == "mse":
+            error = state_error(mean, data["true_state"][t])
+            losses.append(torch.where(fresh[t].unsqueeze(-1), torch.zeros_like(error), error))
         means.append(mean)
         covs.append(cov)
-    loss = torch.stack(losses).mean() if losses else None
+    if objective == "mse":
+        errors = torch.stack(losses)  # (T, N, 5); fresh steps are zero and not counted
+        counted = (~fresh[start:]).sum().clamp_min(1)
+        loss = torch.log(errors.pow(2).sum((0, 1)) / counted).sum()
+    else:
+        loss = torch.stack(losses).mean() if losses else None
     return torch.stack(means), torch.stack(covs), (mean, cov, previous_action), loss
 
 

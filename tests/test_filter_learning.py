@@ -31,7 +31,7 @@ def test_rollouts_mark_episode_starts(rollouts):
     )
 
 
-@pytest.mark.parametrize("objective", ["nll", "supervised"])
+@pytest.mark.parametrize("objective", ["nll", "supervised", "mse"])
 def test_a_few_steps_reduce_the_objective(objective, rollouts):
     ekf = make_filter(DockingConfig())
     fit = FilterFit(objective=objective, window=40, epochs=1, lr=0.05)
