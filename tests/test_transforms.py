@@ -241,3 +241,20 @@ def test_filter_parameters_round_trip_through_a_file(tmp_path):
     (tmp_path / "bad.pt").write_bytes(b"not a filter file")
     with pytest.raises(ValueError, match="not a"):
         EKFTransform().load_filter_params(tmp_path / "bad.pt")
+
+
+def test_version_1_filter_files_load_to_the_same_q(tmp_path):
+    """Version 1 stored Q's Cholesky factor with absolute off-diagonal entries."""
+    log_diag = torch.tensor([-4.0, -4.5, -3.0, -4.4, -5.3])
+    off_abs = torch.linspace(-0.02, 0.03, 10)
+    rows, cols = torch.tril_indices(5, 5, -1)
+    L = torch.diag(log_diag.exp()).index_put((rows, cols), off_abs)
+    payload = {
+        "format": "dockingrl.filter_params/1",
+        "process_noise": {"log_diag": log_diag, "off_diag": off_abs},
+        "measurement_noise": {"log_std": EKFTransform().measurement_noise.log_std.detach()},
+    }
+    torch.save(payload, tmp_path / "v1.pt")
+    ekf = EKFTransform().load_filter_params(tmp_path / "v1.pt")
+    expected = L @ L.T + 1e-10 * torch.eye(5)
+    torch.testing.assert_close(ekf.process_noise(), expected, rtol=1e-5, atol=1e-9)

@@ -29,8 +29,13 @@ from dockingrl.transforms.ekf import (
 
 class ProcessNoise(nn.Module):
     """Learnable process-noise covariance ``Q = L L^T + eps I`` (eq. 29), positive-definite by
-    construction: ``L`` is lower-triangular with a strictly positive (exponentiated) diagonal.
-    Initialised diagonal from Table 1 sigmas."""
+    construction: ``L = diag(sigma) (I + C)`` with ``sigma = exp(log_diag)`` and ``C`` strictly
+    lower-triangular (``off_diag``), so ``L`` has the strictly positive diagonal ``sigma``.
+
+    ``C`` is free of units: ``off_diag`` entries are correlations-like shares relative to each
+    row's sigma, so a gradient step changes a 0.01 rad/s sigma and a 0.02 m sigma by the same
+    relative amount (a unit-carrying ``C`` would let steps of an optimiser's learning rate,
+    ~0.01-0.1, swamp a 0.01 rad/s sigma). Initialised diagonal from Table 1 sigmas."""
 
     def __init__(self, std: Sequence[float] = PROCESS_NOISE_STD, eps: float = 1e-10) -> None:
         super().__init__()
@@ -43,8 +48,10 @@ class ProcessNoise(nn.Module):
 
     def cholesky_factor(self) -> torch.Tensor:
         rows, cols = torch.tril_indices(STATE_DIM, STATE_DIM, offset=-1)
-        L = torch.diag_embed(self.log_diag.exp())
-        return L.index_put((rows.to(L.device), cols.to(L.device)), self.off_diag)
+        sigma = self.log_diag.exp()
+        unit = torch.eye(STATE_DIM, dtype=sigma.dtype, device=sigma.device)
+        unit = unit.index_put((rows.to(sigma.device), cols.to(sigma.device)), self.off_diag)
+        return sigma.unsqueeze(-1) * unit
 
     def forward(self) -> torch.Tensor:
         L = self.cholesky_factor()

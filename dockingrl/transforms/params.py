@@ -8,7 +8,9 @@ import torch
 
 from dockingrl.io import atomic_write
 
-FORMAT = "dockingrl.filter_params/1"
+FORMAT = "dockingrl.filter_params/2"
+#: version 1 stored ``Q``'s Cholesky factor with absolute off-diagonal entries
+FORMAT_V1 = "dockingrl.filter_params/1"
 
 
 def save_filter_params(transform, path: str | Path, **metadata) -> Path:
@@ -40,8 +42,13 @@ def load_filter_params(transform, path: str | Path) -> dict:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a foreign or damaged file fails to unpickle in many ways
         raise ValueError(f"{path} is not a dockingrl filter-parameter file: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+    if not isinstance(payload, dict) or payload.get("format") not in (FORMAT, FORMAT_V1):
         raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
-    transform.process_noise.load_state_dict(payload["process_noise"])
+    process = dict(payload["process_noise"])
+    if payload["format"] == FORMAT_V1:
+        # v1: L = diag(sigma) + C_abs; now L = diag(sigma) (I + C): C = C_abs / sigma_row
+        rows, _ = torch.tril_indices(process["log_diag"].numel(), process["log_diag"].numel(), -1)
+        process["off_diag"] = process["off_diag"] / process["log_diag"].exp()[rows]
+    transform.process_noise.load_state_dict(process)
     transform.measurement_noise.load_state_dict(payload["measurement_noise"])
     return payload
