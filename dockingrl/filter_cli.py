@@ -227,7 +227,10 @@ def add_filter_commands(sub) -> None:
     pc.add_argument("--noise-scale", type=float, default=2.0, help="env's range/bearing noise x")
     pc.add_argument("--total-steps", type=int, default=2_000_000, help="env steps per agent")
     pc.add_argument("--out", default="results/filter_ablation", help="results folder")
-    pc.add_argument("--runs", default="runs", help="folder of the two training runs")
+    pc.add_argument("--runs", default="runs", help="folder of the training runs")
+    pc.add_argument(
+        "--seeds", type=int, nargs="+", default=[0], help="training seeds (one agent each)"
+    )
     pc.add_argument(
         "--set",
         nargs="*",
@@ -260,41 +263,50 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
             extra[name] = parsers[kinds[name]](value)
         except ValueError as exc:
             raise SystemExit(f"error: --set {item}: {exc}") from exc
-    rows, results = [], {"command": command_line(), "agents": {}}
+    rows, results = [], {"command": command_line(), "seeds": list(args.seeds), "agents": {}}
     for name, params in (("hand-tuned (Tables 1-2)", ""), ("learned", args.filter_params)):
-        run_name = "ppo_mismatch_" + ("learned" if params else "handtuned")
-        cfg = make_config(
-            "ppo",
-            "fast",
-            scenario="compound",
-            total_steps=args.total_steps,
-            range_noise_scale=args.noise_scale,
-            bearing_noise_scale=args.noise_scale,
-            filter_params=params,
-            out=args.runs,
-            run_name=run_name,
-            logger="csv",
-            **extra,
-        )
-        result = train(cfg, progress=False, command=command_line())
-        final, summary = result["eval"], result["summary"]
         label = f"{name}: {params}" if params else name
-        results["agents"][label] = {
-            "success_rate": final["success_rate"],
-            "total_reward": final["total_reward"],
-            "time_s": final["time_s"],
-            "failures": final["failures"],
-            "train_wall_clock_s": summary["train_wall_clock_s"],
-            "frames": summary["frames"],
-            "machine": summary["machine"],
-            "run_dir": result["run_dir"],
-        }
-        f, r = final["failures"], final["total_reward"]
-        rows.append(
-            f"| {label} | {final['success_rate']:.1f} | {r['mean']:.1f} +- {r['std']:.1f} | "
-            f"{f['timeout']} / {f['missed_funnel']} / {f['too_fast']} | "
-            f"{summary['train_wall_clock_s']:.0f} |"
-        )
+        runs = {}
+        for seed in args.seeds:
+            run_name = "ppo_mismatch_" + ("learned" if params else "handtuned") + f"_s{seed}"
+            cfg = make_config(
+                "ppo",
+                "fast",
+                scenario="compound",
+                total_steps=args.total_steps,
+                range_noise_scale=args.noise_scale,
+                bearing_noise_scale=args.noise_scale,
+                filter_params=params,
+                out=args.runs,
+                run_name=run_name,
+                logger="csv",
+                seed=seed,
+                **extra,
+            )
+            result = train(cfg, progress=False, command=command_line())
+            final, summary = result["eval"], result["summary"]
+            runs[seed] = {
+                "success_rate": final["success_rate"],
+                "total_reward": final["total_reward"],
+                "time_s": final["time_s"],
+                "failures": final["failures"],
+                "train_wall_clock_s": summary["train_wall_clock_s"],
+                "frames": summary["frames"],
+                "machine": summary["machine"],
+                "run_dir": result["run_dir"],
+            }
+            f, r = final["failures"], final["total_reward"]
+            rows.append(
+                f"| {label} | {seed} | {final['success_rate']:.1f} | "
+                f"{r['mean']:.1f} +- {r['std']:.1f} | "
+                f"{f['timeout']} / {f['missed_funnel']} / {f['too_fast']} | "
+                f"{summary['train_wall_clock_s']:.0f} |"
+            )
+        rates = [run["success_rate"] for run in runs.values()]
+        mean = sum(rates) / len(rates)
+        results["agents"][label] = {"runs": runs, "success_rate_mean": mean}
+        if len(rates) > 1:
+            rows.append(f"| {label} | mean of {len(rates)} | **{mean:.1f}** | | | |")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "ppo_mismatch.json", results)
@@ -305,13 +317,13 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
             "",
             f"Command: `{command_line()}`",
             "",
-            f"Each agent: `--preset fast`, {args.total_steps} env steps, seed 0, trained and "
-            "evaluated (500 episodes) in the mismatched env. Data: `ppo_mismatch.json`. "
-            f"Machine: {summary['machine']}.",
+            f"Each agent: `--preset fast`{''.join(f' --set {x}' for x in args.set)}, "
+            f"{args.total_steps} env steps, trained and evaluated (500 episodes) in the "
+            f"mismatched env. Data: `ppo_mismatch.json`. Machine: {summary['machine']}.",
             "",
-            "| filter in the compound observation | success % | total reward | "
+            "| filter in the compound observation | seed | success % | total reward | "
             "timeouts / missed funnel / too fast | training wall-clock s |",
-            "|---|---|---|---|---|",
+            "|---|---|---|---|---|---|",
             *rows,
             "",
         ]

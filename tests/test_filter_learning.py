@@ -152,13 +152,24 @@ def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path)
     tiny += ["eval_every=10000", "final_eval_episodes=4", "threads=1", "checkpoint_every=0"]
     code = cli_main(
         ["ppo-filter-comparison", "--filter-params", str(params), "--total-steps", "128"]
-        + ["--out", str(tmp_path / "res"), "--runs", str(tmp_path / "runs"), "--set", *tiny]
+        + ["--out", str(tmp_path / "res"), "--runs", str(tmp_path / "runs"), "--seeds", "0", "1"]
+        + ["--set", *tiny]
     )
     assert code == 0
     report = json.loads((tmp_path / "res" / "ppo_mismatch.json").read_text())
     assert len(report["agents"]) == 2
     for agent in report["agents"].values():
-        assert agent["frames"] >= 128 and 0 <= agent["success_rate"] <= 100
-    assert "| learned: " in (tmp_path / "res" / "ppo_mismatch.md").read_text()
+        assert sorted(agent["runs"]) == ["0", "1"]
+        rates = [run["success_rate"] for run in agent["runs"].values()]
+        assert all(run["frames"] >= 128 for run in agent["runs"].values())
+        assert agent["success_rate_mean"] == pytest.approx(sum(rates) / 2)
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [
+        "ppo_mismatch_handtuned_s0",
+        "ppo_mismatch_handtuned_s1",
+        "ppo_mismatch_learned_s0",
+        "ppo_mismatch_learned_s1",
+    ]
+    table = (tmp_path / "res" / "ppo_mismatch.md").read_text()
+    assert "| learned: " in table and "mean of 2" in table
     with pytest.raises(SystemExit, match="hidden"):
         cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "hidden=3"])
