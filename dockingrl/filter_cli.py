@@ -317,7 +317,7 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
             "",
             f"Command: `{command_line()}`",
             "",
-            f"Each agent: `--preset fast`{''.join(f' --set {x}' for x in args.set)}, "
+            f"Each agent: `--preset fast{''.join(f' --set {x}' for x in args.set)}`, "
             f"{args.total_steps} env steps, trained and evaluated (500 episodes) in the "
             f"mismatched env. Data: `ppo_mismatch.json`. Machine: {summary['machine']}.",
             "",
