@@ -21,7 +21,7 @@ from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import make_env
-from dockingrl.transforms import ContactSpeedPenalty
+from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
 
@@ -111,12 +111,16 @@ def env_kwargs(cfg: TrainConfig) -> dict:
 
 def training_transforms(cfg: TrainConfig) -> list:
     """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
-    the paper's eq. 12), then the optional contact-speed term the agent learns from."""
+    the paper's eq. 12), then the optional terms the agent learns from: the floor on a miss's
+    contact reward and the contact-speed penalty."""
     from dockingrl.env import DockingConfig
 
+    contact_weight = DockingConfig().contact_weight
     transforms = [RewardSum()]
+    if cfg.miss_penalty_floor > 0:
+        transforms.append(MissPenaltyFloor(cfg.miss_penalty_floor, contact_weight))
     if cfg.contact_speed_penalty > 0:
-        cap = DockingConfig().contact_weight if cfg.contact_speed_penalty_cap else None
+        cap = contact_weight if cfg.contact_speed_penalty_cap else None
         transforms.append(
             ContactSpeedPenalty(cfg.contact_speed_penalty, cfg.contact_speed_target, cap)
         )
@@ -265,6 +269,11 @@ class Trainer:
 
     def run(self, logger: RunLogger) -> None:
         cfg = self.cfg
+        kwargs = dict(self.env_kwargs)
+        if cfg.following_current_fraction > 0:  # the training draw only; evaluation stays uniform
+            kwargs["config"] = kwargs["config"].replace(
+                following_current_fraction=cfg.following_current_fraction
+            )
         env = make_env(
             cfg.scenario,
             cfg.num_envs,
@@ -272,7 +281,7 @@ class Trainer:
             device=cfg.device,
             compile=cfg.compile,
             transforms=training_transforms(cfg),
-            **self.env_kwargs,
+            **kwargs,
         )
         collector = self._collector(env)
         bar = None

@@ -237,6 +237,7 @@ def test_out_of_bound_actions_are_clipped():
         ("velocity_noise", -1.0),
         ("surge_command_min", 1.0),
         ("max_dist", float("nan")),
+        ("following_current_fraction", 1.5),
     ],
 )
 def test_impossible_config_names_the_field(field, value):
@@ -264,3 +265,17 @@ def test_gymnasium_registration_and_checker():
         total += reward
         done = terminated or truncated
     assert info["step_count"] <= 600 and np.isfinite(total)
+
+
+def test_following_current_fraction_biases_only_the_training_draw():
+    n = 2000
+    plain = DockingEnv(n, seed=7).reset()["ocean_current"]
+    zero = DockingEnv(n, config=DockingConfig(following_current_fraction=0.0), seed=7).reset()
+    torch.testing.assert_close(zero["ocean_current"], plain)  # 0: Sec. 4.1's stream unchanged
+    always = DockingEnv(n, config=DockingConfig(following_current_fraction=1.0), seed=7).reset()
+    oc = always["ocean_current"]
+    assert bool((oc[:, 0] >= 0).all()) and float(oc[:, 0].max()) <= 0.3
+    assert float(oc[:, 0].mean()) == pytest.approx(0.15, abs=0.01)  # uniform on [0, 0.3]
+    torch.testing.assert_close(oc[:, 1], plain[:, 1])  # oc_y untouched
+    half = DockingEnv(n, config=DockingConfig(following_current_fraction=0.5), seed=7).reset()
+    assert float((half["ocean_current"][:, 0] > 0).double().mean()) == pytest.approx(0.75, abs=0.04)

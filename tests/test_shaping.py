@@ -7,18 +7,16 @@ from dockingrl import make_env
 from dockingrl.agents.config import make_config
 from dockingrl.evaluation import base_env
 from dockingrl.training import training_transforms
-from dockingrl.transforms import ContactSpeedPenalty
+from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor
 
 WEIGHT, TARGET = 2000.0, 0.27
 
 
-def fast_contact_rollout(transforms):
+def fast_contact_rollout(transforms, pose=(-2.3, 0.0, 0.0), current=(0.3, 0.0)):
     """Two envs start 1.5 m in front of the funnel with a following current and full surge:
     both touch the station within a few steps at well over 0.3 m/s."""
     env = make_env("compound", 2, seed=3, transforms=transforms)
-    base_env(env).set_initial_state(
-        pose=torch.tensor([-2.3, 0.0, 0.0]), ocean_current=torch.tensor([0.3, 0.0])
-    )
+    base_env(env).set_initial_state(pose=torch.tensor(pose), ocean_current=torch.tensor(current))
     action = torch.tensor([[0.8, 0.0], [0.6, 0.0]])
     td = env.reset()
     steps = []
@@ -91,3 +89,34 @@ def test_bad_penalty_arguments_are_refused(kwargs):
 def test_bad_penalty_config_is_refused():
     with pytest.raises(ValueError, match="contact_speed_penalty"):
         make_config("sac", contact_speed_penalty=-5.0)
+
+
+def test_miss_floor_lifts_only_a_bad_miss():
+    """Broadside into the side of the funnel (heading pi/2, pushed by a cross current): a miss
+    with g far below 0; the floor bounds its contact reward at -floor and changes nothing else."""
+    floor = 100.0
+    side = dict(pose=(-0.4, -2.0, 1.5708), current=(0.0, 0.3))
+    plain = fast_contact_rollout([RewardSum()], **side)
+    floored = fast_contact_rollout([RewardSum(), MissPenaltyFloor(floor)], **side)
+    contact = plain["terminated"].squeeze(-1)
+    assert bool(contact[-1].all())
+    score = plain["contact_score"].squeeze(-1)
+    assert bool((200.0 * score[-1] < -floor).all())  # the paper's reward: a large penalty
+    difference = (floored["reward"] - plain["reward"]).squeeze(-1)
+    torch.testing.assert_close(difference[-1], -floor - 200.0 * score[-1], rtol=1e-5, atol=1e-4)
+    assert bool((difference[~contact] == 0).all())
+    torch.testing.assert_close(floored["episode_reward"], plain["episode_reward"])
+    # a valid entry (g > 0) is left alone
+    entry = fast_contact_rollout([RewardSum()])
+    entry_floored = fast_contact_rollout([RewardSum(), MissPenaltyFloor(floor)])
+    torch.testing.assert_close(entry_floored["reward"], entry["reward"])
+
+
+def test_training_transforms_add_the_floor_before_the_penalty():
+    cfg = make_config("ppo", miss_penalty_floor=200.0, contact_speed_penalty=500.0)
+    names = [type(t).__name__ for t in training_transforms(cfg)]
+    assert names == ["RewardSum", "MissPenaltyFloor", "ContactSpeedPenalty"]
+    with pytest.raises(ValueError, match="miss_penalty_floor"):
+        make_config("ppo", miss_penalty_floor=-1.0)
+    with pytest.raises(ValueError, match="floor"):
+        MissPenaltyFloor(0.0)

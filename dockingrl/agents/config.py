@@ -65,6 +65,16 @@ class TrainConfig:
         "contact never scores below a miss",
         default=False,
     )
+    following_current_fraction: float = _doc(
+        "training envs: probability that a reset draws oc_x from [0, 0.3] only (following "
+        "currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
+        default=0.0,
+    )
+    miss_penalty_floor: float = _doc(
+        "training reward: a miss (g <= 0) costs at most this on contact instead of 200 |g| "
+        "(0: off; not in the paper)",
+        default=0.0,
+    )
 
     observe_current: bool = _doc(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
@@ -93,8 +103,11 @@ class TrainConfig:
                 fail(name, "must be >= 1")
         if self.checkpoint_every < 0:
             fail("checkpoint_every", "must be >= 0")
-        if self.contact_speed_penalty < 0:
-            fail("contact_speed_penalty", "must be >= 0")
+        for name in ("contact_speed_penalty", "miss_penalty_floor"):
+            if getattr(self, name) < 0:
+                fail(name, "must be >= 0")
+        if not 0.0 <= self.following_current_fraction <= 1.0:
+            fail("following_current_fraction", "must lie in [0, 1]")
         for name in ("range_noise_scale", "bearing_noise_scale", "contact_speed_target"):
             if not getattr(self, name) > 0:
                 fail(name, "must be > 0")

@@ -49,6 +49,10 @@ class DockingConfig:
     init_y: tuple[float, float] = (-7.5, 7.5)  # m
     init_heading: tuple[float, float] = (-math.pi / 2, math.pi / 2)  # rad
     ocean_current_range: tuple[float, float] = (-0.3, 0.3)  # m/s, each of oc_x, oc_y
+    #: probability that a reset draws oc_x from the upper half of ``ocean_current_range`` only
+    #: (currents that carry the AUV towards the DS, the hard cells of Figure 9); 0 is Sec. 4.1's
+    #: uniform draw. A training curriculum, not in the paper; evaluation keeps 0.
+    following_current_fraction: float = 0.0
 
     # --- sensor noise (Table 2), standard deviations ---------------------------------------
     noise: bool = True  # False gives the true observation (scenario ``no_noise``)
@@ -121,6 +125,8 @@ class DockingConfig:
         ):
             if getattr(self, name) < 0:
                 fail(name, "must be >= 0")
+        if not 0.0 <= self.following_current_fraction <= 1.0:
+            fail("following_current_fraction", "must lie in [0, 1]")
         if self.surge_kp == 0 and self.surge_ki == 0:
             fail("surge_kp", "surge PID needs a proportional or integral gain")
         if self.yaw_kp == 0 and self.yaw_ki == 0:

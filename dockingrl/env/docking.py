@@ -287,6 +287,12 @@ class DockingEnv(EnvBase):
             ),
             dim=-1,
         )
+        if cfg.following_current_fraction > 0:
+            # reflect oc_x into the upper half of the range: still uniform there
+            mid = 0.5 * sum(cfg.ocean_current_range)
+            follow = _uniform(0.0, 1.0, n, gen, dev, dtype) < cfg.following_current_fraction
+            upper = mid + (current[:, 0] - mid).abs()
+            current[:, 0] = torch.where(follow, upper, current[:, 0])
         if self._pinned_pose is not None:
             pose = self._pinned_pose
         if self._pinned_current is not None:

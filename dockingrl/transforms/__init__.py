@@ -16,11 +16,12 @@ from dockingrl.transforms.filtering import (
     MeasurementNoise,
     ProcessNoise,
 )
-from dockingrl.transforms.shaping import ContactSpeedPenalty
+from dockingrl.transforms.shaping import ContactSpeedPenalty, MissPenaltyFloor
 
 __all__ = [
     "CompoundObservation",
     "ContactSpeedPenalty",
+    "MissPenaltyFloor",
     "EKFTransform",
     "MeasurementNoise",
     "ProcessNoise",

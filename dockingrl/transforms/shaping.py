@@ -68,3 +68,41 @@ class ContactSpeedPenalty(Transform):
         self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
     ) -> TensorDictBase:
         return tensordict_reset
+
+
+class MissPenaltyFloor(Transform):
+    """Bounds the contact reward of a miss from below: ``r_g = max(contact_weight * g, -floor)``
+    on the contact step (training only, not in the paper).
+
+    Eq. 11 gives ``200 g`` on contact, and ``g`` of eq. 10 is unbounded below: a contact broadside
+    or from behind the station scores ``g`` down to ``1 - 3.05 pi (1 + pi/2) = -23.6``, a reward of ``-4700``, against
+    at most ``+200`` for a perfect entry and about ``-1`` per step for the distance term. Such
+    outliers dominate the critic's targets and teach an agent that cannot yet dock under a
+    strong following current to keep away from the station until the time limit. A floor keeps
+    every miss below every valid entry (``g > 0`` scores ``> 0``) and the order among entries
+    unchanged, and it touches nothing the evaluation reports.
+
+    Args:
+        floor: the most a miss may cost, in reward units (> 0).
+        contact_weight: the weight of eq. 11 (the env's ``DockingConfig.contact_weight``).
+    """
+
+    def __init__(self, floor: float, contact_weight: float = 200.0) -> None:
+        if not floor > 0:
+            raise ValueError(f"floor must be > 0, got {floor!r}")
+        if not contact_weight > 0:
+            raise ValueError(f"contact_weight must be > 0, got {contact_weight!r}")
+        super().__init__(in_keys=["reward", "contact_score"], out_keys=["reward"])
+        self.floor = float(floor)
+        self.contact_weight = float(contact_weight)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        r_g = self.contact_weight * next_tensordict.get("contact_score")
+        lift = (-self.floor - r_g).clamp_min(0.0)
+        next_tensordict.set("reward", next_tensordict.get("reward") + lift)
+        return next_tensordict
+
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        return tensordict_reset
