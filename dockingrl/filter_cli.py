@@ -136,8 +136,9 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
         "",
         "| condition | filter | position RMSE m | heading RMSE rad | surge RMSE m/s | "
         "yaw-rate RMSE rad/s | mean NEES (5 = consistent) | steps in 95 % NEES interval | "
-        "time steps whose run-averaged NEES is in its 95 % region |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "time steps whose run-averaged NEES is in its 95 % region | "
+        "e_i^2/P_ii: x / y / heading / surge / yaw rate (1 = consistent) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for condition, scale in (("nominal", 1.0), ("mismatched", args.mismatch)):
         config = mismatched_config(scale)
@@ -165,6 +166,8 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
             lines.append(
                 f"| {condition} (x{scale:g} range/bearing noise) | {name} | "
                 + " | ".join(f"{r[k]:.4f}" if k != "nees_mean" else f"{r[k]:.2f}" for k in ROWS)
+                + " | "
+                + " / ".join(f"{v:.2f}" for v in r["normalized_error_per_component"])
                 + " |"
             )
         results["conditions"][condition] = {"noise_scale": scale, "filters": rows}

@@ -303,5 +303,12 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
         ),
         "nees_step_bounds_95": [low_step, high_step],
         "nees_runs_per_step": float(runs[runs > 0].double().mean()),
+        # e_i^2 / P_ii per state component (x, y, heading, surge, yaw rate): 1 when consistent,
+        # above 1 where the filter is overconfident
+        "normalized_error_per_component": (
+            (all_errors.pow(2) / torch.diagonal(covs.double(), dim1=-2, dim2=-1))[keep]
+            .mean(0)
+            .tolist()
+        ),
         "nees_fraction_of_steps_in_run_mean_bounds": run_averaged_nees_test(nees_tn, keep, dof),
     }

@@ -101,6 +101,8 @@ def test_filter_evaluation_reports_rmse_and_nees(rollouts):
         assert 0 < report[key] < 1
     low, high = report["nees_mean_bounds_95"]
     assert low < 5 < high
+    per_component = report["normalized_error_per_component"]
+    assert len(per_component) == 5 and all(v > 0 for v in per_component)
     assert report["nees_step_bounds_95"][0] == pytest.approx(0.831, abs=0.05)
     assert report["nees_step_bounds_95"][1] == pytest.approx(12.83, abs=0.1)
 
