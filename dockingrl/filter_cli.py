@@ -179,10 +179,11 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
         f"(training rollouts: seed {args.seed}), behaviour `{args.behaviour}`; the first 10 steps "
         f"of each episode are left out. 95 % bounds of the mean NEES over this many samples: "
         f"[{bounds[0]:.2f}, {bounds[1]:.2f}]; per-step 95 % interval of chi-square(5): "
-        f"[0.83, 12.83]. Last column: the Monte-Carlo consistency test (Bar-Shalom, Li and "
-        f"Kirubarajan 2001, Sec. 5.4): at each time index the NEES averaged over the "
+        f"[0.83, 12.83]. Second-last column: the Monte-Carlo consistency test (Bar-Shalom, "
+        f"Li and Kirubarajan 2001, Sec. 5.4): at each time index the NEES averaged over the "
         f"{args.num_envs} envs against the 95 % region of such an average (a consistent filter "
-        f"scores about 0.95). Wall-clock {results['wall_clock_s']:.0f} s.",
+        f"scores about 0.95). Last column: the mean of e_i^2 / P_ii per state component (above "
+        f"1: overconfident there). Wall-clock {results['wall_clock_s']:.0f} s.",
     ]
     write_json(out / "ablation.json", results)
     text = "\n".join(lines) + "\n"
