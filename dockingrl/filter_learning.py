@@ -265,6 +265,18 @@ def run_averaged_nees_test(nees: torch.Tensor, keep: torch.Tensor, dof: int = 5)
     return float(((mean >= low) & (mean <= high)).double().mean())
 
 
+def normalized_errors(
+    means: torch.Tensor, covs: torch.Tensor, true_state: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """NEES ``e^T P^-1 e`` of the 5-dim state error ``(...)`` and ``e_i^2 / P_ii`` per state
+    component ``(..., 5)`` (x, y, heading, surge, yaw rate), in float64. For a consistent filter
+    the first is chi-square(5) (mean 5) and each of the second has mean 1."""
+    error = state_error(means, true_state).double()
+    cov = covs.double()
+    nees = (error.unsqueeze(-2) @ torch.linalg.solve(cov, error.unsqueeze(-1)))[..., 0, 0]
+    return nees, error.pow(2) / torch.diagonal(cov, dim1=-2, dim2=-1)
+
+
 def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> dict:
     """RMSE of the estimate against the truth and NEES consistency on recorded rollouts.
 
@@ -279,11 +291,8 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
     with torch.no_grad():
         means, covs, _, _ = run_filter(ekf, data)
     keep = data["step_count"] >= skip
-    all_errors = state_error(means, data["true_state"]).double()
-    nees_tn = (
-        all_errors.unsqueeze(-2) @ torch.linalg.solve(covs.double(), all_errors.unsqueeze(-1))
-    ).reshape(keep.shape)
-    error, nees = all_errors[keep], nees_tn[keep]
+    nees_tn, per_component = normalized_errors(means, covs, data["true_state"])
+    error, nees = state_error(means, data["true_state"]).double()[keep], nees_tn[keep]
     n, dof = nees.numel(), 5
     low_step, high_step = _chi2_quantile(0.025, dof), _chi2_quantile(0.975, dof)
     runs = keep.sum(-1)
@@ -305,10 +314,6 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
         "nees_runs_per_step": float(runs[runs > 0].double().mean()),
         # e_i^2 / P_ii per state component (x, y, heading, surge, yaw rate): 1 when consistent,
         # above 1 where the filter is overconfident
-        "normalized_error_per_component": (
-            (all_errors.pow(2) / torch.diagonal(covs.double(), dim1=-2, dim2=-1))[keep]
-            .mean(0)
-            .tolist()
-        ),
+        "normalized_error_per_component": per_component[keep].mean(0).tolist(),
         "nees_fraction_of_steps_in_run_mean_bounds": run_averaged_nees_test(nees_tn, keep, dof),
     }

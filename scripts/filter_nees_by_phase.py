@@ -16,7 +16,12 @@ import time
 
 import torch
 
-from dockingrl.filter_learning import mismatched_config, record_rollouts, run_filter, state_error
+from dockingrl.filter_learning import (
+    mismatched_config,
+    normalized_errors,
+    record_rollouts,
+    run_filter,
+)
 from dockingrl.io import write_json
 from dockingrl.transforms import EKFTransform
 
@@ -41,11 +46,7 @@ def main() -> None:
             ekf.load_filter_params(spec)
         with torch.no_grad():
             means, covs, _, _ = run_filter(ekf, data)
-        error = state_error(means, data["true_state"]).double()
-        cov = covs.double()
-        nees = (error.unsqueeze(-2) @ torch.linalg.solve(cov, error.unsqueeze(-1))).flatten(-2)
-        nees = nees.squeeze(-1)
-        per_component = error.pow(2) / torch.diagonal(cov, dim1=-2, dim2=-1)
+        nees, per_component = normalized_errors(means, covs, data["true_state"])
         rows = []
         for low, high in BANDS:
             band = (step >= low) & (step < high)
