@@ -344,7 +344,8 @@ class Trainer:
     def _train_on(self, data) -> dict[str, float]:
         cfg = self.cfg
         if cfg.algo == "ppo":
-            losses = self.agent.learn(data)
+            progress = (self.frames - data.numel()) / cfg.total_steps
+            losses = self.agent.learn(data, progress=progress)
         else:
             learning_frames = self.frames - cfg.start_steps
             target = int(cfg.updates_per_step * learning_frames) if learning_frames > 0 else 0

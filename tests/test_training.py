@@ -289,3 +289,36 @@ def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path):
     assert result["summary"]["updates"] > 0
     saved = json.loads((tmp_path / "ppo_compound" / "config.json").read_text())
     assert saved["contact_speed_penalty"] == 2000.0 and saved["reward_scale"] == 0.1
+
+
+def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
+    """``lr_schedule="linear"`` sets Adam's rate to ``lr (1 - progress)`` before each update;
+    ``constant`` keeps ``lr``; an unknown schedule is refused."""
+    from torchrl.collectors import Collector
+
+    from dockingrl.agents.algorithms import make_agent
+    from dockingrl.scenarios import make_env
+
+    env = make_env("noise", 4, seed=1)
+    rates = {}
+    for schedule in ("constant", "linear"):
+        cfg = tiny_config("ppo", "noise", tmp_path, epochs=1, lr=1e-3, lr_schedule=schedule)
+        agent = make_agent(cfg, 6, env.action_spec[0].clone(), 30.0)
+        collector = Collector(
+            env,
+            agent.exploration_policy,
+            frames_per_batch=64,
+            total_frames=64,
+            auto_register_policy_transforms=False,
+        )
+        data = next(iter(collector))
+        collector.shutdown()
+        for progress in (0.0, 0.75):
+            losses = agent.learn(data, progress=progress)
+            rates[schedule, progress] = agent.optimizers["all"].param_groups[0]["lr"]
+            assert losses["lr"] == pytest.approx(rates[schedule, progress])
+    assert rates["constant", 0.0] == rates["constant", 0.75] == pytest.approx(1e-3)
+    assert rates["linear", 0.0] == pytest.approx(1e-3)
+    assert rates["linear", 0.75] == pytest.approx(2.5e-4)
+    with pytest.raises(ValueError, match="lr_schedule"):
+        tiny_config("ppo", "noise", tmp_path, lr_schedule="cosine")

@@ -145,11 +145,15 @@ class Agent:
     extra: dict[str, Any] = field(default_factory=dict)
 
     # -- learning ------------------------------------------------------------------------
-    def learn(self, data: TensorDictBase, num_updates: int = 0) -> dict[str, float]:
+    def learn(
+        self, data: TensorDictBase, num_updates: int = 0, progress: float = 0.0
+    ) -> dict[str, float]:
         """Off-policy: store ``data`` (``(num_envs, T)``) and run ``num_updates`` updates.
-        On-policy: PPO's epochs over ``data``. Returns mean losses (``losses/...``)."""
+        On-policy: PPO's epochs over ``data``; ``progress`` (the fraction of ``total_steps``
+        done before ``data``) sets the learning rate of ``lr_schedule="linear"``. Returns mean
+        losses (``losses/...``)."""
         if self.config.algo == "ppo":
-            return self._learn_ppo(data)
+            return self._learn_ppo(data, progress)
         self.replay_buffer.extend(data.select(*TRANSITION_KEYS).reshape(-1))
         logs: dict[str, list[float]] = {}
         for _ in range(num_updates):
@@ -217,8 +221,13 @@ class Agent:
             self.target_updater.step()
         return {k: _scalar(v) for k, v in logs.items()}
 
-    def _learn_ppo(self, data: TensorDictBase) -> dict[str, float]:
+    def _learn_ppo(self, data: TensorDictBase, progress: float) -> dict[str, float]:
         cfg, optim = self.config, self.optimizers["all"]
+        lr = cfg.lr
+        if cfg.lr_schedule == "linear":
+            lr = cfg.lr * (1.0 - min(max(progress, 0.0), 1.0))
+        for group in optim.param_groups:
+            group["lr"] = lr
         params = list(self.loss.parameters())
         frames = data.numel()
         if cfg.reward_scale != 1.0:
@@ -240,6 +249,7 @@ class Agent:
                 self.updates += 1
                 for key, value in out.items():
                     logs.setdefault(key, []).append(_scalar(value))
+        logs["lr"] = [lr]
         return {k: sum(v) / len(v) for k, v in logs.items()}
 
     # -- checkpoints -----------------------------------------------------------------------

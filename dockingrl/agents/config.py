@@ -13,6 +13,7 @@ from typing import Any, get_type_hints
 from dockingrl.scenarios import SCENARIOS
 
 LOGGERS = ("wandb", "csv", "none")
+LR_SCHEDULES = ("constant", "linear")
 
 
 def _doc(text: str, **kwargs) -> Any:
@@ -186,6 +187,11 @@ class PPOConfig(TrainConfig):
     total_steps: int = _doc("env steps (frames) to train for, all envs counted", default=2_500_000)
     eval_every: int = _doc("env steps between periodic evaluations", default=50_000)
     lr: float = _doc("Adam learning rate", default=3e-4)
+    lr_schedule: str = _doc(
+        "constant, or linear: the learning rate falls linearly to 0 at total_steps "
+        "(not in Table 5)",
+        default="constant",
+    )
     steps_per_env: int = _doc("rollout length per env and update (n_steps)", default=2048)
     minibatch_size: int = _doc("minibatch size", default=64)
     epochs: int = _doc("passes over each rollout", default=10)
@@ -213,6 +219,11 @@ class PPOConfig(TrainConfig):
             )
         if self.epochs < 1:
             raise ValueError("PPOConfig.epochs: must be >= 1")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(
+                f"PPOConfig.lr_schedule: valid: {', '.join(LR_SCHEDULES)} "
+                f"(got {self.lr_schedule!r})"
+            )
         if not self.reward_scale > 0:
             raise ValueError(f"PPOConfig.reward_scale: must be > 0 (got {self.reward_scale})")
         if self.compile_update:
