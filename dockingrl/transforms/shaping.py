@@ -74,9 +74,10 @@ class MissPenaltyFloor(Transform):
     """Bounds the contact reward of a miss from below: ``r_g = max(contact_weight * g, -floor)``
     on the contact step (training only, not in the paper).
 
-    Eq. 11 gives ``200 g`` on contact, and ``g`` of eq. 10 is unbounded below: a contact broadside
-    or from behind the station scores ``g`` down to ``1 - 3.05 pi (1 + pi/2) = -23.6``, a reward of ``-4700``, against
-    at most ``+200`` for a perfect entry and about ``-1`` per step for the distance term. Such
+    Eq. 11 gives ``200 g`` on contact, and ``g`` of eq. 10 is unbounded below: a contact
+    broadside or from behind the station scores ``g`` down to ``1 - 3.05 pi (1 + pi/2) =
+    -23.6``, a reward of ``-4700``, against at most ``+200`` for a perfect entry and about
+    ``-1`` per step for the distance term. Such
     outliers dominate the critic's targets and teach an agent that cannot yet dock under a
     strong following current to keep away from the station until the time limit. A floor keeps
     every miss below every valid entry (``g > 0`` scores ``> 0``) and the order among entries
