@@ -65,9 +65,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from dockingrl.plots import plot_success_map, plot_trajectories
 
     torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options = load_policy(
-        args.policy, use_filter=args.use_filter
-    )
+    policy, name, trained_scenario, options = load_policy(args.policy, use_filter=args.use_filter)
     scenario = args.scenario or trained_scenario or "noise"
     config = DockingConfig(contact_speed_tolerance=args.speed_tolerance)
     env_kwargs = {"config": config, **options}

@@ -39,18 +39,14 @@ class ContactSpeedPenalty(Transform):
         >>> env = make_env("compound", 8, transforms=[RewardSum(), ContactSpeedPenalty(2000.0)])
     """
 
-    def __init__(
-        self, weight: float, target_speed: float = 0.27, cap: float | None = None
-    ) -> None:
+    def __init__(self, weight: float, target_speed: float = 0.27, cap: float | None = None) -> None:
         if not weight >= 0:
             raise ValueError(f"weight must be >= 0, got {weight!r}")
         if not target_speed > 0:
             raise ValueError(f"target_speed must be > 0, got {target_speed!r}")
         if cap is not None and not cap > 0:
             raise ValueError(f"cap (the contact weight) must be > 0 or None, got {cap!r}")
-        super().__init__(
-            in_keys=["reward", "contact_speed", "contact_score"], out_keys=["reward"]
-        )
+        super().__init__(in_keys=["reward", "contact_speed", "contact_score"], out_keys=["reward"])
         self.weight = float(weight)
         self.target_speed = float(target_speed)
         self.cap = None if cap is None else float(cap)
