@@ -43,12 +43,20 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         "hand-tuned filter keeps Table 2's R)",
     )
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument(
+        "--manoeuvre-noise",
+        action="store_true",
+        help="learn a Q that grows with the gap between commanded and estimated velocity "
+        "(not in the paper; see dockingrl.transforms.ProcessNoise)",
+    )
 
 
-def _fit(args, objective: str, config, data, log=None):
+def _fit(args, objective: str, config, data, log=None, manoeuvre: bool | None = None):
     from dockingrl.scenarios import make_filter
 
-    ekf = make_filter(config)
+    if manoeuvre is None:
+        manoeuvre = args.manoeuvre_noise
+    ekf = make_filter(config, manoeuvre_noise=manoeuvre)
     fit = FilterFit(
         objective=objective,
         num_envs=args.num_envs,
@@ -149,16 +157,22 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
             args.num_envs, args.steps, config=config, behaviour=args.behaviour, seed=HELD_OUT_SEED
         )
         filters = {"hand-tuned (Tables 1-2)": make_filter(config)}
-        for objective in OBJECTIVES:
-            ekf, _ = _fit(args, objective, config, data)
+        variants = [(objective, False) for objective in OBJECTIVES]
+        if args.manoeuvre_noise:
+            variants += [(objective, True) for objective in ("nll", "supervised")]
+        for objective, manoeuvre in variants:
+            ekf, _ = _fit(args, objective, config, data, manoeuvre=manoeuvre)
+            suffix = "_manoeuvre" if manoeuvre else ""
             save_filter_params(
                 ekf,
-                out / f"{condition}_{objective}.pt",
+                out / f"{condition}_{objective}{suffix}.pt",
                 objective=objective,
                 condition=condition,
+                manoeuvre_noise=manoeuvre,
                 command=command_line(),
             )
-            filters[f"learned, {objective}"] = ekf
+            label = f"learned, {objective}" + (", manoeuvre Q" if manoeuvre else "")
+            filters[label] = ekf
         rows = {}
         for name, ekf in filters.items():
             rows[name] = evaluate_filter(ekf, held_out)

@@ -146,7 +146,6 @@ def run_filter(
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
     z, action = data["observation"], data["action"]
     current, fresh = data["ocean_current"], data["step_count"] == 0
-    Q = ekf.process_noise()
     means, covs, losses = [], [], []
     if state is None:
         mean, cov = _initial(ekf, z[0], current[0])
@@ -156,8 +155,10 @@ def run_filter(
     else:
         (mean, cov, previous_action), start = state, 0
     for t in range(start, z.shape[0]):
+        applied = ekf._applied_action(previous_action)
+        Q = ekf.process_noise(mean, applied)
         prior_mean, prior_cov = ekf_predict(
-            mean, cov, previous_action, current[t], Q, dt, k_v=ekf.k_v, k_w=ekf.k_w
+            mean, cov, applied, current[t], Q, dt, k_v=ekf.k_v, k_w=ekf.k_w
         )
         previous_action = action[t]
         R = ekf.measurement_noise(z[t, :, 0])

@@ -175,3 +175,60 @@ def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path)
     assert "| learned: " in table and "mean of 2" in table
     with pytest.raises(SystemExit, match="hidden"):
         cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "hidden=3"])
+
+
+def test_manoeuvre_q_is_the_constant_q_at_zero_gap_grows_with_it_and_stays_pd():
+    gen = torch.Generator().manual_seed(1)
+    q = ProcessNoise(manoeuvre=True)
+    mean = torch.zeros(64, 5)
+    mean[:, 3:] = torch.randn(64, 2, generator=gen) * 0.3
+    torch.testing.assert_close(q(mean, mean[:, 3:]), q().expand(64, 5, 5))
+    gap = torch.tensor([[0.0, 0.0], [0.2, 0.0], [0.8, 0.0], [0.0, 0.3]])
+    Q = q(torch.zeros(4, 5), gap).diagonal(dim1=-2, dim2=-1)
+    assert (Q[2] > Q[1]).all() and (Q[1] > Q[0]).all() and (Q[3] > Q[0]).all()
+    for _ in range(300):  # any parameters, any gap: symmetric positive-definite
+        with torch.no_grad():
+            q.log_diag.copy_(torch.rand(5, generator=gen) * 9 - 7)
+            q.off_diag.copy_(torch.randn(10, generator=gen) * 0.5)
+            q.log_manoeuvre_gain.copy_(torch.rand(2, 5, generator=gen) * 12 - 9)
+        Q = q(torch.randn(8, 5, generator=gen), torch.randn(8, 2, generator=gen)).double()
+        assert torch.equal(Q, Q.transpose(-1, -2))
+        assert torch.linalg.eigvalsh(Q).min() > 0
+    with pytest.raises(ValueError, match="action"):
+        q(mean)
+
+
+def test_manoeuvre_q_is_fitted_saved_and_loaded_into_any_filter(tmp_path, rollouts):
+    """Its gains get gradients from both objectives; a file fixes whether a loaded filter
+    uses them; the env's transform and ``run_filter`` agree step by step."""
+    from dockingrl.transforms.params import save_filter_params
+
+    ekf = make_filter(DockingConfig(), manoeuvre_noise=True)
+    fit = FilterFit(objective="nll", window=40, epochs=1, lr=0.05)
+    with torch.no_grad():
+        before = run_filter(ekf, rollouts[:40], objective="nll")[3].item()
+    gains = ekf.process_noise.log_manoeuvre_gain.detach().clone()
+    for _ in range(4):
+        fit_filter(ekf, fit, data=rollouts[:40].clone())
+    with torch.no_grad():
+        after = run_filter(ekf, rollouts[:40], objective="nll")[3].item()
+    assert after < before
+    assert not torch.equal(gains, ekf.process_noise.log_manoeuvre_gain)
+    save_filter_params(ekf, tmp_path / "m.pt")
+    plain = make_filter(DockingConfig()).load_filter_params(tmp_path / "m.pt")
+    assert plain.process_noise.manoeuvre
+    mean, action = torch.randn(3, 5), torch.randn(3, 2)
+    torch.testing.assert_close(plain.process_noise(mean, action), ekf.process_noise(mean, action))
+    save_filter_params(make_filter(DockingConfig()), tmp_path / "c.pt")
+    assert not plain.load_filter_params(tmp_path / "c.pt").process_noise.manoeuvre
+
+    from torchrl.envs import TransformedEnv
+
+    from dockingrl.env import DockingEnv
+
+    env = TransformedEnv(DockingEnv(4, seed=3), plain.load_filter_params(tmp_path / "m.pt"))
+    steps = env.rollout(30, break_when_any_done=False).transpose(0, 1)  # (30, 4)
+    td = steps.select("observation", "action", "ocean_current").clone()
+    td["step_count"] = steps["step_count"].squeeze(-1)
+    means = run_filter(env.transform, td, dt=0.2)[0]
+    torch.testing.assert_close(means[1:], steps["next", "ekf_mean"][:-1], atol=1e-4, rtol=1e-4)

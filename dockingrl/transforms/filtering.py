@@ -35,9 +35,26 @@ class ProcessNoise(nn.Module):
     ``C`` is free of units: ``off_diag`` entries are correlations-like shares relative to each
     row's sigma, so a gradient step changes a 0.01 rad/s sigma and a 0.02 m sigma by the same
     relative amount (a unit-carrying ``C`` would let steps of an optimiser's learning rate,
-    ~0.01-0.1, swamp a 0.01 rad/s sigma). Initialised diagonal from Table 1 sigmas."""
+    ~0.01-0.1, swamp a 0.01 rad/s sigma). Initialised diagonal from Table 1 sigmas.
 
-    def __init__(self, std: Sequence[float] = PROCESS_NOISE_STD, eps: float = 1e-10) -> None:
+    With ``manoeuvre=True`` (not in the paper) ``Q`` also grows with the manoeuvre: eq. 24's
+    first-order velocity model is least accurate while the vehicle's PID is saturated, that is
+    when the commanded velocity is far from the present one, so
+
+        ``Q(x, u) = L L^T + diag(sum_j (gain_j,i * (u_j - nu_j))^2) + eps I``
+
+    with ``u = [v_d, w_d]`` the applied command, ``nu = [nu, w]`` the estimated surge and yaw
+    rate before the prediction, and ``gain = exp(log_manoeuvre_gain)`` ``(2, 5)`` (units of
+    each state per m/s or rad/s of gap, initialised at 10 % of the Table 1 sigma per unit of
+    gap). The added term is positive semi-definite, so ``Q`` stays positive-definite."""
+
+    def __init__(
+        self,
+        std: Sequence[float] = PROCESS_NOISE_STD,
+        eps: float = 1e-10,
+        *,
+        manoeuvre: bool = False,
+    ) -> None:
         super().__init__()
         std = torch.as_tensor(std, dtype=torch.float64)
         if std.shape != (STATE_DIM,) or not bool((std > 0).all()):
@@ -45,6 +62,23 @@ class ProcessNoise(nn.Module):
         self.log_diag = nn.Parameter(std.log().float())
         self.off_diag = nn.Parameter(torch.zeros(STATE_DIM * (STATE_DIM - 1) // 2))
         self.eps = eps
+        if manoeuvre:
+            self.set_manoeuvre(True)
+
+    @property
+    def manoeuvre(self) -> bool:
+        """Whether ``Q`` depends on the manoeuvre (see the class docstring)."""
+        return hasattr(self, "log_manoeuvre_gain")
+
+    def set_manoeuvre(self, enabled: bool) -> ProcessNoise:
+        """Add (initialised at 10 % of the diagonal sigma per unit of velocity gap) or drop the
+        manoeuvre gains."""
+        if enabled and not self.manoeuvre:
+            init = (self.log_diag.detach() + math.log(0.1)).expand(2, STATE_DIM).clone()
+            self.log_manoeuvre_gain = nn.Parameter(init, requires_grad=self.log_diag.requires_grad)
+        elif not enabled and self.manoeuvre:
+            del self.log_manoeuvre_gain
+        return self
 
     def cholesky_factor(self) -> torch.Tensor:
         rows, cols = torch.tril_indices(STATE_DIM, STATE_DIM, offset=-1)
@@ -53,11 +87,22 @@ class ProcessNoise(nn.Module):
         unit = unit.index_put((rows.to(sigma.device), cols.to(sigma.device)), self.off_diag)
         return sigma.unsqueeze(-1) * unit
 
-    def forward(self) -> torch.Tensor:
+    def forward(
+        self, mean: torch.Tensor | None = None, action: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """``Q`` ``(5, 5)``; with manoeuvre gains and the prior ``mean`` ``(..., 5)`` and
+        applied ``action`` ``(..., 2)`` given, ``(..., 5, 5)``."""
         L = self.cholesky_factor()
         eye = torch.eye(STATE_DIM, dtype=L.dtype, device=L.device)
         Q = L @ L.T
-        return 0.5 * (Q + Q.T) + self.eps * eye
+        Q = 0.5 * (Q + Q.T) + self.eps * eye
+        if self.manoeuvre and mean is not None:
+            if action is None:
+                raise ValueError("a manoeuvre-dependent Q needs the action with the mean")
+            gap = (action - mean[..., 3:5]).to(L.dtype)  # (..., 2)
+            extra = (gap.unsqueeze(-1) * self.log_manoeuvre_gain.exp()).pow(2).sum(-2)
+            Q = Q + torch.diag_embed(extra)
+        return Q
 
 
 class MeasurementNoise(nn.Module):
@@ -103,6 +148,9 @@ class EKFTransform(Transform):
         process_noise_std: Table 1 sigmas of ``[x, y, alpha, nu, w]``.
         measurement_noise_std: Table 2 sigmas, the first relative to the measured range.
         learnable: whether ``Q`` and ``R`` require grad.
+        manoeuvre_noise: let ``Q`` grow with the gap between commanded and estimated
+            velocity (:class:`ProcessNoise`, not in the paper); a loaded parameter file sets
+            this to what it was fitted with.
         action_low, action_high: bounds the env clips the action to; the filter predicts with
             the clipped action that was really applied (``None``: as given).
         observation_key, action_key, current_key, out_key: tensordict keys.
@@ -126,6 +174,7 @@ class EKFTransform(Transform):
         process_noise_std: Sequence[float] = PROCESS_NOISE_STD,
         measurement_noise_std: Sequence[float] = MEASUREMENT_NOISE_STD,
         learnable: bool = False,
+        manoeuvre_noise: bool = False,
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
         observation_key: str = "observation",
@@ -145,7 +194,7 @@ class EKFTransform(Transform):
         self.out_key = out_key
         self.mean_key, self.cov_key = "ekf_mean", "ekf_cov"
         self.dt, self.k_v, self.k_w = dt, k_v, k_w
-        self.process_noise = ProcessNoise(process_noise_std)
+        self.process_noise = ProcessNoise(process_noise_std, manoeuvre=manoeuvre_noise)
         self.measurement_noise = MeasurementNoise(measurement_noise_std)
         self.set_learnable(learnable)
         bounds = None
@@ -191,7 +240,7 @@ class EKFTransform(Transform):
         """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
         compiles, noise models included)."""
         action = self._applied_action(action).to(z.dtype)
-        Q = self.process_noise().to(z.dtype)
+        Q = self.process_noise(mean, action).to(z.dtype)
         R = self.measurement_noise(z[..., 0])
         return ekf_step(
             mean,

@@ -45,6 +45,7 @@ def load_filter_params(transform, path: str | Path) -> dict:
     if not isinstance(payload, dict) or payload.get("format") not in (FORMAT, FORMAT_V1):
         raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
     process = dict(payload["process_noise"])
+    transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in process)
     if payload["format"] == FORMAT_V1:
         # v1: L = diag(sigma) + C_abs; now L = diag(sigma) (I + C): C = C_abs / sigma_row
         rows, _ = torch.tril_indices(process["log_diag"].numel(), process["log_diag"].numel(), -1)
