@@ -145,6 +145,8 @@ class Trainer:
         self.next_eval = cfg.eval_every
         self.next_checkpoint = cfg.checkpoint_every or None
         self.last_success = float("nan")
+        # keep_best: the best periodic evaluation so far and the actor's weights then
+        self.best: dict | None = None
         self.run_id = run_dir.name.replace("__", "-")[-60:]
         self.env_kwargs = env_kwargs(cfg)
         probe = make_env(cfg.scenario, 1, seed=0, **self.env_kwargs)
@@ -178,6 +180,7 @@ class Trainer:
             "next_eval": self.next_eval,
             "next_checkpoint": self.next_checkpoint,
             "torch_rng": torch.get_rng_state(),
+            "best": self.best,
         }
         torch.save(state, tmp / "state.pt")
         if self.agent.replay_buffer is not None and len(self.agent.replay_buffer):
@@ -207,6 +210,7 @@ class Trainer:
             state["elapsed"],
         )
         self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
+        self.best = state.get("best")
         torch.set_rng_state(state["torch_rng"])
         self._drop_curves_after(self.frames)
         return True
@@ -237,6 +241,14 @@ class Trainer:
             **self.env_kwargs,
         )
         self.last_success = m["success_rate"]
+        if self.cfg.keep_best and (self.best is None or m["success_rate"] > self.best["success"]):
+            self.best = {
+                "success": m["success_rate"],
+                "frames": self.frames,
+                "actor": {
+                    k: v.detach().cpu().clone() for k, v in self.agent.actor.state_dict().items()
+                },
+            }
         return {
             "eval/success_rate": m["success_rate"],
             "eval/total_reward": m["total_reward"]["mean"],
@@ -354,6 +366,13 @@ class Trainer:
 
     def finish(self, logger: RunLogger) -> dict:
         cfg = self.cfg
+        chosen = {}
+        if cfg.keep_best and self.best is not None:
+            self.agent.actor.load_state_dict(self.best["actor"])
+            chosen = {
+                "policy_from_frames": self.best["frames"],
+                "policy_periodic_success_rate": self.best["success"],
+            }
         save_policy(
             self.run_dir / "policy.pt",
             self.agent.actor,
@@ -362,6 +381,7 @@ class Trainer:
             self.action_spec,
             self.max_dist,
             frames=self.frames,
+            **chosen,
         )
         start = time.perf_counter()
         final = evaluate(
@@ -384,6 +404,7 @@ class Trainer:
             "train_wall_clock_s": self.elapsed,
             "final_eval_wall_clock_s": time.perf_counter() - start,
             "success_rate": final["success_rate"],
+            **chosen,
             "machine": describe_machine(),
             "command": self.command,
         }

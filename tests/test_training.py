@@ -322,3 +322,37 @@ def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
     assert rates["linear", 0.75] == pytest.approx(2.5e-4)
     with pytest.raises(ValueError, match="lr_schedule"):
         tiny_config("ppo", "noise", tmp_path, lr_schedule="cosine")
+
+
+def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(tmp_path, monkeypatch):
+    """Periodic evaluations score 50, 90, 10 %: the saved policy and the final evaluation use
+    the actor of the second one; the checkpoint carries it for a resumed run."""
+    import dockingrl.training as training
+    from dockingrl.agents.saving import load_policy
+
+    real_evaluate, scores, seen = training.evaluate, iter([50.0, 90.0, 10.0]), []
+
+    def scripted(policy, scenario, num_episodes, **kwargs):
+        metrics = real_evaluate(policy, scenario, num_episodes, **kwargs)
+        if num_episodes == COMMON["eval_episodes"]:  # a periodic evaluation
+            metrics["success_rate"] = next(scores)
+            seen.append({k: v.clone() for k, v in policy.state_dict().items()})
+        else:
+            seen.append("final")
+            final_state = {k: v.clone() for k, v in policy.state_dict().items()}
+            for k, v in seen[1].items():
+                torch.testing.assert_close(final_state[k], v)
+        return metrics
+
+    monkeypatch.setattr(training, "evaluate", scripted)
+    cfg = tiny_config("ppo", "noise", tmp_path, total_steps=768, eval_every=256, keep_best=True)
+    result = train(cfg, progress=False)
+    assert seen[-1] == "final" and len(seen) == 4
+    assert result["summary"]["policy_from_frames"] == 512
+    assert result["summary"]["policy_periodic_success_rate"] == 90.0
+    _, info = load_policy(tmp_path / "ppo_noise" / "policy.pt")
+    assert info["metadata"]["policy_from_frames"] == 512
+    run = tmp_path / "ppo_noise"
+    latest = json.loads((run / "checkpoints" / "latest.json").read_text())
+    state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
+    assert state["best"]["frames"] == 512 and state["best"]["success"] == 90.0

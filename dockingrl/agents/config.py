@@ -77,6 +77,11 @@ class TrainConfig:
         default=0.0,
     )
 
+    keep_best: bool = _doc(
+        "end with the actor of the best periodic evaluation (its episodes never overlap the "
+        "final evaluation's) instead of the last one (not in the paper)",
+        default=False,
+    )
     observe_current: bool = _doc(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
