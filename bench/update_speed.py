@@ -1,7 +1,10 @@
 """Gradient updates per second of the TorchRL agents at the paper's sizes, beside a minimal
 plain-PyTorch implementation of the same update, in the same process.
 
-Usage: ``python bench/update_speed.py [--seconds 5] [--threads 2] [--algos sac td3 ppo]``
+Usage: ``python bench/update_speed.py [--seconds 5] [--rounds 5] [--algos sac td3 ppo]``
+
+TorchRL and plain updates are timed in alternating rounds, so that a drift in the machine's
+speed (frequent on shared CPUs) hits both alike.
 
 Each is also run through ``torch.compile`` (TorchRL: the agent's ``compile_update`` option, which
 compiles forward and backward of the loss; plain: the whole update function).
@@ -16,6 +19,7 @@ from __future__ import annotations
 import argparse
 import copy
 import math
+import statistics
 import time
 
 import torch
@@ -215,9 +219,21 @@ def plain_ppo():
 PLAIN = {"sac": plain_sac, "td3": plain_td3, "ppo": plain_ppo}
 
 
+def paired_rates(ours, plain, seconds: float, rounds: int) -> tuple[float, float, float]:
+    """Median rates of two update functions measured in alternating rounds (so that a drift in
+    the machine's speed hits both alike), and the median of the per-round time ratios."""
+    pairs = [(rate(ours, seconds / rounds), rate(plain, seconds / rounds)) for _ in range(rounds)]
+    return (
+        statistics.median(o for o, _ in pairs),
+        statistics.median(p for _, p in pairs),
+        statistics.median(p / o for o, p in pairs),
+    )
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=5.0)
+    parser.add_argument("--seconds", type=float, default=5.0, help="per variant, all rounds")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds per pair")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--algos", nargs="+", default=["sac", "td3", "ppo"])
     args = parser.parse_args(argv)
@@ -230,18 +246,26 @@ def main(argv=None) -> None:
     )
     print("|---|---|---|---|---|---|---|")
     for algo in args.algos:
-        ours = rate(torchrl_update(algo), args.seconds)
-        plain = rate(PLAIN[algo](), args.seconds)
+        ours, plain, ratio = paired_rates(
+            torchrl_update(algo), PLAIN[algo](), args.seconds, args.rounds
+        )
         if algo == "ppo":  # compiling ClipPPOLoss did not finish within 10 minutes here
-            print(f"| {algo} | {ours:,.0f} | - | {plain:,.0f} | - | {plain / ours:.2f}x | - |")
+            print(f"| {algo} | {ours:,.0f} | - | {plain:,.0f} | - | {ratio:.2f}x | - |")
             continue
-        ours_compiled = rate(torchrl_update(algo, compile_update=True), args.seconds)
-        plain_compiled = rate(torch.compile(PLAIN[algo]()), args.seconds)
+        ours_compiled, plain_compiled, _ = paired_rates(
+            torchrl_update(algo, compile_update=True),
+            torch.compile(PLAIN[algo]()),
+            args.seconds,
+            args.rounds,
+        )
         print(
             f"| {algo} | {ours:,.0f} | {ours_compiled:,.0f} | {plain:,.0f} | "
-            f"{plain_compiled:,.0f} | {plain / ours:.2f}x | {plain / ours_compiled:.2f}x |"
+            f"{plain_compiled:,.0f} | {ratio:.2f}x | {plain / ours_compiled:.2f}x |"
         )
-    print("(compiled rates exclude the compilation, done during the warm-up)")
+    print(
+        f"(medians over {args.rounds} alternating rounds; the ratio is the median of the "
+        "per-round ratios; compiled rates exclude the compilation, done during the warm-up)"
+    )
 
 
 if __name__ == "__main__":
