@@ -159,6 +159,11 @@ class Trainer:
             cfg, self.obs_dim, self.action_spec, self.max_dist, cfg.device
         )
 
+    @property
+    def out_of_time(self) -> bool:
+        """Whether ``time_budget_s`` (if any) is spent."""
+        return 0 < self.cfg.time_budget_s <= self.elapsed
+
     # -- checkpoints -----------------------------------------------------------------------
     @property
     def checkpoint_root(self) -> Path:
@@ -348,6 +353,8 @@ class Trainer:
                     while self.next_checkpoint <= self.frames:
                         self.next_checkpoint += cfg.checkpoint_every
                     self.save_checkpoint()
+                if self.out_of_time:
+                    break
         finally:
             collector.shutdown()
             if bar is not None:
@@ -402,6 +409,7 @@ class Trainer:
             "num_envs": cfg.num_envs,
             "updates": self.agent.updates,
             "train_wall_clock_s": self.elapsed,
+            "stopped_by_time_budget": self.frames < cfg.total_steps and self.out_of_time,
             "final_eval_wall_clock_s": time.perf_counter() - start,
             "success_rate": final["success_rate"],
             **chosen,
@@ -481,7 +489,7 @@ def train(
     if resume is not None and not trainer.load_checkpoint():
         raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints to resume from")
     logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
-    if trainer.frames < cfg.total_steps:
+    if trainer.frames < cfg.total_steps and not trainer.out_of_time:
         trainer.run(logger)
     result = trainer.finish(logger)
     result["run_dir"] = str(run_dir)

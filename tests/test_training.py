@@ -356,3 +356,14 @@ def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(tmp_path,
     latest = json.loads((run / "checkpoints" / "latest.json").read_text())
     state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
     assert state["best"]["frames"] == 512 and state["best"]["success"] == 90.0
+
+
+def test_time_budget_stops_training_early_and_says_so(tmp_path):
+    cfg = tiny_config("ppo", "noise", tmp_path, total_steps=2048, time_budget_s=1e-6)
+    result = train(cfg, progress=False)
+    summary = result["summary"]
+    assert summary["frames"] == 256 < cfg.total_steps, "one rollout, then the budget is spent"
+    assert summary["stopped_by_time_budget"] is True
+    assert result["eval"]["episodes"] == COMMON["final_eval_episodes"]
+    with pytest.raises(ValueError, match="time_budget_s"):
+        tiny_config("ppo", "noise", tmp_path, time_budget_s=-1.0)

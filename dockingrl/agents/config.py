@@ -77,6 +77,11 @@ class TrainConfig:
         default=0.0,
     )
 
+    time_budget_s: float = _doc(
+        "stop once training (periodic evaluations included) has run this many seconds, "
+        "before total_steps if need be (0: no limit)",
+        default=0.0,
+    )
     keep_best: bool = _doc(
         "end with the actor of the best periodic evaluation (its episodes never overlap the "
         "final evaluation's) instead of the last one (not in the paper)",
@@ -109,7 +114,7 @@ class TrainConfig:
                 fail(name, "must be >= 1")
         if self.checkpoint_every < 0:
             fail("checkpoint_every", "must be >= 0")
-        for name in ("contact_speed_penalty", "miss_penalty_floor"):
+        for name in ("contact_speed_penalty", "miss_penalty_floor", "time_budget_s"):
             if getattr(self, name) < 0:
                 fail(name, "must be >= 0")
         if not 0.0 <= self.following_current_fraction <= 1.0:
