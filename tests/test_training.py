@@ -1,6 +1,7 @@
 """Smoke runs of every algorithm on every scenario, checkpoint/resume, saved policies, CLI."""
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -367,3 +368,49 @@ def test_time_budget_stops_training_early_and_says_so(tmp_path):
     assert result["eval"]["episodes"] == COMMON["final_eval_episodes"]
     with pytest.raises(ValueError, match="time_budget_s"):
         tiny_config("ppo", "noise", tmp_path, time_budget_s=-1.0)
+
+
+def test_ppo_stable_baselines3_style_policy_options(tmp_path):
+    """``state_independent_scale``: one learned scale per action, the same for every
+    observation; ``orthogonal_init``: orthogonal layers, a near-zero policy output; ``tanh``
+    activations; the saved policy rebuilds them; an unknown activation is refused."""
+    from dockingrl.agents.algorithms import build_actor, make_agent
+    from dockingrl.scenarios import make_env
+
+    env = make_env("compound", 2, seed=0)
+    spec = env.action_spec[0].clone()
+    cfg = tiny_config(
+        "ppo",
+        "compound",
+        tmp_path,
+        activation="tanh",
+        state_independent_scale=True,
+        orthogonal_init=True,
+    )
+    agent = make_agent(cfg, 12, spec, 30.0)
+    actor = agent.exploration_policy
+    assert any(isinstance(m, torch.nn.Tanh) for m in actor.modules())
+    assert not any(isinstance(m, torch.nn.ReLU) for m in actor.modules())
+    observations = torch.randn(64, 12) * torch.tensor([10.0, 1, 1, 0.3, 0.3, 0.1] * 2)
+    from tensordict import TensorDict
+
+    params = actor.module[0](TensorDict({"observation": observations}, [64]))
+    assert torch.allclose(params["scale"], params["scale"][:1].expand(64, -1))
+    assert params["loc"].abs().max() < 0.1  # output gain 0.01
+    linears = [m for m in actor.modules() if isinstance(m, torch.nn.Linear)]
+    w = linears[0].weight  # 32 x 12: orthonormal columns times sqrt(2)
+    assert torch.allclose(w.T @ w, 2.0 * torch.eye(12), atol=1e-5)
+    assert all((m.bias == 0).all() for m in linears)
+    # the default keeps a state-dependent scale and ReLU
+    plain = build_actor(tiny_config("ppo", "compound", tmp_path), 12, spec, 30.0)
+    params = plain.module[0](TensorDict({"observation": observations}, [64]))
+    assert not torch.allclose(params["scale"], params["scale"][:1].expand(64, -1))
+    # train briefly, save, load: the loaded actor has the same layers and the learned scale
+    result = train(cfg, progress=False)
+    loaded, info = load_policy(Path(result["run_dir"]) / "policy.pt")
+    assert info["config"]["state_independent_scale"] is True
+    assert any(isinstance(m, torch.nn.Tanh) for m in loaded.modules())
+    (learned,) = [p for n, p in loaded.named_parameters() if n.endswith("state_independent_scale")]
+    assert learned.abs().max() > 0  # moved from its initial 0 by the updates
+    with pytest.raises(ValueError, match="activation"):
+        tiny_config("ppo", "compound", tmp_path, activation="gelu")

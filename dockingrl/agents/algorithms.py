@@ -13,7 +13,12 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from tensordict.nn import (
+    AddStateIndependentNormalScale,
+    NormalParamExtractor,
+    TensorDictModule,
+    TensorDictSequential,
+)
 from torch import nn
 from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import RandomSampler
@@ -67,21 +72,34 @@ def observation_scale(obs_dim: int, max_dist: float, normalize: bool) -> torch.T
     return scale
 
 
+ACTIVATION_CLASSES = {"relu": nn.ReLU, "tanh": nn.Tanh}
+
+
 def mlp(
     in_features: int,
     out_features: int,
     hidden: tuple[int, ...],
     scale: torch.Tensor,
+    *,
+    activation: str = "relu",
+    orthogonal_gain: float | None = None,
 ) -> nn.Module:
-    return nn.Sequential(
-        ObservationScale(scale),
-        MLP(
-            in_features=in_features,
-            out_features=out_features,
-            num_cells=list(hidden),
-            activation_class=nn.ReLU,
-        ),
+    """Observation scaling then an MLP. ``orthogonal_gain`` (``None``: PyTorch's default
+    init) gives orthogonal weights of gain sqrt(2) in the hidden layers and ``orthogonal_gain``
+    on the output layer, with zero biases (stable-baselines3's init)."""
+    net = MLP(
+        in_features=in_features,
+        out_features=out_features,
+        num_cells=list(hidden),
+        activation_class=ACTIVATION_CLASSES[activation],
     )
+    if orthogonal_gain is not None:
+        linears = [m for m in net.modules() if isinstance(m, nn.Linear)]
+        for i, layer in enumerate(linears):
+            gain = orthogonal_gain if i == len(linears) - 1 else 2**0.5
+            nn.init.orthogonal_(layer.weight, gain=gain)
+            nn.init.zeros_(layer.bias)
+    return nn.Sequential(ObservationScale(scale), net)
 
 
 class _Critic(nn.Module):
@@ -95,10 +113,28 @@ class _Critic(nn.Module):
         return self.net(torch.cat((observation, action), dim=-1))
 
 
-def stochastic_actor(obs_dim: int, action_spec: Bounded, hidden, scale, *, log_prob=False):
-    """Tanh-Normal actor (SAC, PPO): an MLP gives loc and scale, squashed into the bounds."""
+def stochastic_actor(
+    obs_dim: int,
+    action_spec: Bounded,
+    hidden,
+    scale,
+    *,
+    log_prob=False,
+    activation: str = "relu",
+    state_independent_scale: bool = False,
+    orthogonal_init: bool = False,
+):
+    """Tanh-Normal actor (SAC, PPO): an MLP gives the loc and, unless
+    ``state_independent_scale`` (one learned scale per action, initially 1), the scale too;
+    the sample is squashed into the bounds."""
     act_dim = action_spec.shape[-1]
-    net = nn.Sequential(mlp(obs_dim, 2 * act_dim, hidden, scale), NormalParamExtractor())
+    gain = 0.01 if orthogonal_init else None
+    if state_independent_scale:
+        body = mlp(obs_dim, act_dim, hidden, scale, activation=activation, orthogonal_gain=gain)
+        net = nn.Sequential(body, AddStateIndependentNormalScale(act_dim, scale_lb=1e-4))
+    else:
+        body = mlp(obs_dim, 2 * act_dim, hidden, scale, activation=activation, orthogonal_gain=gain)
+        net = nn.Sequential(body, NormalParamExtractor())
     return ProbabilisticActor(
         TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],
@@ -126,7 +162,18 @@ def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: 
     scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
     if cfg.algo == "td3":
         return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale)
-    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, log_prob=cfg.algo == "ppo")
+    if cfg.algo == "ppo":
+        return stochastic_actor(
+            obs_dim,
+            action_spec,
+            cfg.hidden,
+            scale,
+            log_prob=True,
+            activation=cfg.activation,
+            state_independent_scale=cfg.state_independent_scale,
+            orthogonal_init=cfg.orthogonal_init,
+        )
+    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale)
 
 
 @dataclass
@@ -379,7 +426,15 @@ def _make_td3(cfg: TD3Config, actor, action_spec, obs_dim, act_dim, scale, devic
 
 
 def _make_ppo(cfg: PPOConfig, actor, obs_dim, scale, device) -> Agent:
-    critic = ValueOperator(mlp(obs_dim, 1, cfg.hidden, scale), in_keys=["observation"]).to(device)
+    value_net = mlp(
+        obs_dim,
+        1,
+        cfg.hidden,
+        scale,
+        activation=cfg.activation,
+        orthogonal_gain=1.0 if cfg.orthogonal_init else None,
+    )
+    critic = ValueOperator(value_net, in_keys=["observation"]).to(device)
     advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False)
     loss = ClipPPOLoss(
         actor_network=actor,

@@ -14,6 +14,7 @@ from dockingrl.scenarios import SCENARIOS
 
 LOGGERS = ("wandb", "csv", "none")
 LR_SCHEDULES = ("constant", "linear")
+ACTIVATIONS = ("relu", "tanh")
 
 
 def _doc(text: str, **kwargs) -> Any:
@@ -216,6 +217,21 @@ class PPOConfig(TrainConfig):
         "rewards x this inside GAE and the value loss (not in the paper; logs stay unscaled)",
         default=1.0,
     )
+    activation: str = _doc(
+        "hidden-layer activation of actor and critic: relu, or tanh (stable-baselines3's PPO "
+        "default)",
+        default="relu",
+    )
+    state_independent_scale: bool = _doc(
+        "the policy's standard deviation is one learned parameter per action, not a network "
+        "output (stable-baselines3's PPO)",
+        default=False,
+    )
+    orthogonal_init: bool = _doc(
+        "orthogonal weights, gain sqrt(2) in hidden layers, 0.01 on the policy's output and 1 "
+        "on the value's, zero biases (stable-baselines3's PPO)",
+        default=False,
+    )
 
     def validate(self) -> None:
         super().validate()
@@ -233,6 +249,10 @@ class PPOConfig(TrainConfig):
             raise ValueError(
                 f"PPOConfig.lr_schedule: valid: {', '.join(LR_SCHEDULES)} "
                 f"(got {self.lr_schedule!r})"
+            )
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(
+                f"PPOConfig.activation: valid: {', '.join(ACTIVATIONS)} (got {self.activation!r})"
             )
         if not self.reward_scale > 0:
             raise ValueError(f"PPOConfig.reward_scale: must be > 0 (got {self.reward_scale})")
