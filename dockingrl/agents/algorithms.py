@@ -128,13 +128,14 @@ def stochastic_actor(
     ``state_independent_scale`` (one learned scale per action, initially 1), the scale too;
     the sample is squashed into the bounds."""
     act_dim = action_spec.shape[-1]
+    outputs, head = (
+        (act_dim, AddStateIndependentNormalScale(act_dim, scale_lb=1e-4))
+        if state_independent_scale
+        else (2 * act_dim, NormalParamExtractor())
+    )
     gain = 0.01 if orthogonal_init else None
-    if state_independent_scale:
-        body = mlp(obs_dim, act_dim, hidden, scale, activation=activation, orthogonal_gain=gain)
-        net = nn.Sequential(body, AddStateIndependentNormalScale(act_dim, scale_lb=1e-4))
-    else:
-        body = mlp(obs_dim, 2 * act_dim, hidden, scale, activation=activation, orthogonal_gain=gain)
-        net = nn.Sequential(body, NormalParamExtractor())
+    body = mlp(obs_dim, outputs, hidden, scale, activation=activation, orthogonal_gain=gain)
+    net = nn.Sequential(body, head)
     return ProbabilisticActor(
         TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],
