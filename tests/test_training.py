@@ -374,6 +374,8 @@ def test_ppo_stable_baselines3_style_policy_options(tmp_path):
     """``state_independent_scale``: one learned scale per action, the same for every
     observation; ``orthogonal_init``: orthogonal layers, a near-zero policy output; ``tanh``
     activations; the saved policy rebuilds them; an unknown activation is refused."""
+    from tensordict import TensorDict
+
     from dockingrl.agents.algorithms import build_actor, make_agent
     from dockingrl.scenarios import make_env
 
@@ -392,8 +394,6 @@ def test_ppo_stable_baselines3_style_policy_options(tmp_path):
     assert any(isinstance(m, torch.nn.Tanh) for m in actor.modules())
     assert not any(isinstance(m, torch.nn.ReLU) for m in actor.modules())
     observations = torch.randn(64, 12) * torch.tensor([10.0, 1, 1, 0.3, 0.3, 0.1] * 2)
-    from tensordict import TensorDict
-
     params = actor.module[0](TensorDict({"observation": observations}, [64]))
     assert torch.allclose(params["scale"], params["scale"][:1].expand(64, -1))
     assert params["loc"].abs().max() < 0.1  # output gain 0.01

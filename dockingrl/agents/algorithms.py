@@ -163,18 +163,17 @@ def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: 
     scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
     if cfg.algo == "td3":
         return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale)
-    if cfg.algo == "ppo":
-        return stochastic_actor(
-            obs_dim,
-            action_spec,
-            cfg.hidden,
-            scale,
-            log_prob=True,
-            activation=cfg.activation,
-            state_independent_scale=cfg.state_independent_scale,
-            orthogonal_init=cfg.orthogonal_init,
-        )
-    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale)
+    ppo_options = (
+        {
+            "log_prob": True,
+            "activation": cfg.activation,
+            "state_independent_scale": cfg.state_independent_scale,
+            "orthogonal_init": cfg.orthogonal_init,
+        }
+        if cfg.algo == "ppo"
+        else {}
+    )
+    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, **ppo_options)
 
 
 @dataclass
