@@ -47,6 +47,38 @@ TRANSITION_KEYS = (
 )
 
 
+def n_step_transitions(data: TensorDictBase, n_steps: int, gamma: float) -> TensorDictBase:
+    """n-step transitions (not in the paper) from time-ordered data of shape ``(envs, L)``.
+
+    The transition of step ``t`` keeps ``observation`` and ``action`` of ``t`` and looks ahead
+    ``m = min(n_steps, steps left in its episode)`` steps: its reward is
+    ``sum_{k<m} gamma^k r_{t+k}``, its ``next`` entries (observation and the ``done`` /
+    ``terminated`` / ``truncated`` flags) are those of step ``t + m - 1``, and
+    ``steps_to_next_obs = m``, which TorchRL's TD(0) estimator turns into the bootstrap
+    discount ``gamma^m``. A transition ending on a terminal step therefore never bootstraps.
+    Only the first ``L - n_steps + 1`` steps have their whole window in ``data`` and are
+    returned; the caller carries the last ``n_steps - 1`` steps over to the next call."""
+    length = data.shape[-1]
+    count = length - n_steps + 1
+    if count < 1:
+        raise ValueError(f"n-step transitions need at least {n_steps} steps, got {length}")
+    reward = data["next", "reward"]
+    done = data["next", "done"]
+    index = torch.arange(count, device=reward.device).expand(*data.shape[:-1], count)
+    last = index.clone()
+    summed = torch.zeros_like(reward[..., :count, :])
+    alive = torch.ones_like(done[..., :count, :])
+    for k in range(n_steps):
+        summed = summed + alive * (gamma**k) * reward[..., k : k + count, :]
+        last = torch.where(alive.squeeze(-1), index + k, last)
+        alive = alive & ~done[..., k : k + count, :]
+    out = data[..., :count].clone()
+    out["next"] = data["next"].gather(-1, last)
+    out["next", "reward"] = summed
+    out["steps_to_next_obs"] = (last - index + 1).unsqueeze(-1).to(reward.dtype)
+    return out
+
+
 class ObservationScale(nn.Module):
     """Multiplies the observation by fixed per-entry factors (part of the saved network)."""
 
@@ -201,12 +233,25 @@ class Agent:
         losses (``losses/...``)."""
         if self.config.algo == "ppo":
             return self._learn_ppo(data, progress)
-        self.replay_buffer.extend(data.select(*TRANSITION_KEYS).reshape(-1))
+        self.replay_buffer.extend(self._transitions(data.select(*TRANSITION_KEYS)).reshape(-1))
         logs: dict[str, list[float]] = {}
         for _ in range(num_updates):
             for key, value in self._off_policy_update().items():
                 logs.setdefault(key, []).append(value)
         return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _transitions(self, data: TensorDictBase) -> TensorDictBase:
+        """What the replay buffer stores of ``data``: one-step transitions, or with
+        ``n_steps > 1`` the n-step ones of :func:`n_step_transitions`, the last
+        ``n_steps - 1`` steps waiting for the next collection to complete their window."""
+        n = self.config.n_steps
+        if n == 1:
+            return data
+        tail = self.extra.get("n_step_tail")
+        if tail is not None:
+            data = torch.cat((tail, data), dim=-1)
+        self.extra["n_step_tail"] = data[..., data.shape[-1] - (n - 1) :].clone()
+        return n_step_transitions(data, n, self.config.gamma)
 
     def _gradients(self, name: str, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Forward and backward of one loss (``name``: ``sac``, ``critic``, ``actor`` or
@@ -308,6 +353,8 @@ class Agent:
         }
         if "generator" in self.extra:
             state["generator"] = self.extra["generator"].get_state()
+        if "n_step_tail" in self.extra:
+            state["n_step_tail"] = self.extra["n_step_tail"]
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -317,6 +364,8 @@ class Agent:
         self.updates = state["updates"]
         if "generator" in state:
             self.extra["generator"].set_state(state["generator"])
+        if "n_step_tail" in state:
+            self.extra["n_step_tail"] = state["n_step_tail"]
 
 
 def _scalar(value: torch.Tensor) -> float:

@@ -145,7 +145,12 @@ class SACConfig(TrainConfig):
     learn_alpha: bool = _doc(
         "tune alpha to the target entropy instead (not in the paper)", default=False
     )
-    target_entropy: float = _doc("target entropy, -dim(action) = -2", default=-2.0)
+    target_entropy: float = _doc(
+        "target entropy of learn_alpha, in the env's action units: -dim(action) = -2; "
+        "stable-baselines3's 'auto' (-2 in its [-1, 1] action units) is -2 + log(0.6 * 0.3) "
+        "= -3.71 here",
+        default=-2.0,
+    )
     batch_size: int = _doc("minibatch size", default=256)
     gamma: float = _doc("discount", default=0.99)
     lr: float = _doc("Adam learning rate, actor and critics", default=3e-4)
@@ -154,6 +159,12 @@ class SACConfig(TrainConfig):
     tau: float = _doc("target-network soft-update rate (every update)", default=0.005)
     updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
     frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
+    n_steps: int = _doc(
+        "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
+        "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
+        "targets; not in the paper)",
+        default=1,
+    )
 
     def validate(self) -> None:
         super().validate()
@@ -182,6 +193,12 @@ class TD3Config(TrainConfig):
     target_noise_clip: float = _doc("target policy smoothing noise clip", default=0.5)
     exploration_sigma: float = _doc("Gaussian action-noise sigma while collecting", default=0.2)
     frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
+    n_steps: int = _doc(
+        "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
+        "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
+        "targets; not in the paper)",
+        default=1,
+    )
 
     def validate(self) -> None:
         super().validate()
@@ -264,6 +281,14 @@ class PPOConfig(TrainConfig):
 
 
 def _check_off_policy(cfg) -> None:
+    if cfg.n_steps < 1:
+        raise ValueError(f"{type(cfg).__name__}.n_steps: must be >= 1 (got {cfg.n_steps})")
+    if cfg.n_steps > cfg.frames_per_batch // cfg.num_envs:
+        raise ValueError(
+            f"{type(cfg).__name__}.n_steps: at most the steps per env of one collection, "
+            f"frames_per_batch // num_envs = {cfg.frames_per_batch // cfg.num_envs} "
+            f"(got {cfg.n_steps})"
+        )
     if cfg.batch_size < 1 or cfg.buffer_size < cfg.batch_size:
         raise ValueError(
             f"{type(cfg).__name__}.buffer_size: must hold at least one batch "

@@ -1,0 +1,170 @@
+"""n-step transitions of the off-policy agents: sums, episode ends, the carry between
+collections, the bootstrap discount, checkpoints and a training run."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.modules import ValueOperator
+from torchrl.objectives.value import TD0Estimator
+
+from dockingrl.agents.algorithms import make_agent, n_step_transitions
+from dockingrl.agents.config import make_config
+from dockingrl.scenarios import make_env
+from dockingrl.training import train
+
+GAMMA = 0.9
+
+
+def trajectories(envs: int, steps: int, seed: int = 0) -> TensorDict:
+    """Time-ordered transitions with episode ends: terminations and truncations at random."""
+    g = torch.Generator().manual_seed(seed)
+    terminated = torch.rand(envs, steps, 1, generator=g) < 0.15
+    truncated = (torch.rand(envs, steps, 1, generator=g) < 0.1) & ~terminated
+    return TensorDict(
+        {
+            "observation": torch.randn(envs, steps, 3, generator=g),
+            "action": torch.randn(envs, steps, 2, generator=g),
+            "next": {
+                "observation": torch.randn(envs, steps, 3, generator=g),
+                "reward": torch.randn(envs, steps, 1, generator=g),
+                "done": terminated | truncated,
+                "terminated": terminated,
+                "truncated": truncated,
+            },
+        },
+        batch_size=[envs, steps],
+    )
+
+
+def reference(data: TensorDict, n: int, env: int, t: int) -> dict:
+    """One n-step transition by the definition, one step at a time."""
+    reward, m = 0.0, 0
+    while m < n:
+        reward += GAMMA**m * float(data["next", "reward"][env, t + m])
+        m += 1
+        if bool(data["next", "done"][env, t + m - 1]):
+            break
+    last = t + m - 1
+    return {
+        "reward": reward,
+        "steps": m,
+        "next_observation": data["next", "observation"][env, last],
+        "terminated": bool(data["next", "terminated"][env, last]),
+        "truncated": bool(data["next", "truncated"][env, last]),
+    }
+
+
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_n_step_transitions_match_the_definition(n):
+    data = trajectories(3, 20)
+    out = n_step_transitions(data, n, GAMMA)
+    assert out.shape == (3, 20 - n + 1)
+    for env in range(3):
+        for t in range(out.shape[1]):
+            ref = reference(data, n, env, t)
+            assert float(out["next", "reward"][env, t]) == pytest.approx(ref["reward"], abs=1e-5)
+            assert int(out["steps_to_next_obs"][env, t]) == ref["steps"]
+            assert torch.equal(out["next", "observation"][env, t], ref["next_observation"])
+            assert bool(out["next", "terminated"][env, t]) == ref["terminated"]
+            assert bool(out["next", "truncated"][env, t]) == ref["truncated"]
+            assert torch.equal(out["observation"][env, t], data["observation"][env, t])
+            assert torch.equal(out["action"][env, t], data["action"][env, t])
+
+
+def test_n_step_transitions_need_a_whole_window():
+    with pytest.raises(ValueError, match="at least 5 steps"):
+        n_step_transitions(trajectories(2, 4), 5, GAMMA)
+
+
+def agent_with(n: int, num_envs: int = 3):
+    env = make_env("no_noise", 1, seed=0)
+    cfg = make_config(
+        "sac",
+        "paper",
+        n_steps=n,
+        gamma=GAMMA,
+        hidden=(8,),
+        num_envs=num_envs,
+        frames_per_batch=30,
+        batch_size=4,
+    )
+    return make_agent(cfg, 6, env.action_spec[0], 30.0)
+
+
+def test_collections_are_joined_so_no_transition_is_lost_or_cut():
+    """Two collections give the transitions of their concatenation: the last n - 1 steps of
+    the first wait for the second, and a checkpoint carries them."""
+    data = trajectories(3, 20, seed=1)
+    agent = agent_with(4)
+    agent.learn(data[:, :10])
+    resumed = agent_with(4)
+    resumed.load_state_dict(agent.state_dict())
+    resumed.learn(data[:, 10:])
+    whole = n_step_transitions(data, 4, GAMMA)
+    for stored, expected in (
+        (agent.replay_buffer[:], whole[:, :7].reshape(-1)),
+        (resumed.replay_buffer[:], whole[:, 7:].reshape(-1)),
+    ):
+        assert len(stored) == len(expected)
+        for key in (("next", "reward"), ("next", "observation"), "action", "steps_to_next_obs"):
+            assert torch.allclose(stored[key], expected[key])
+
+
+def test_one_step_agents_store_the_collected_transitions_unchanged():
+    data = trajectories(3, 10)
+    agent = agent_with(1)
+    agent.learn(data)
+    stored = agent.replay_buffer[:]
+    assert "steps_to_next_obs" not in stored.keys()
+    assert torch.equal(stored["next", "reward"], data["next", "reward"].reshape(-1, 1))
+
+
+def test_td0_target_discounts_by_gamma_to_the_steps_summed():
+    """TorchRL's TD(0) estimator, which SACLoss and TD3Loss use, bootstraps with
+    gamma^steps_to_next_obs and not at all after a termination."""
+    value = ValueOperator(torch.nn.Linear(3, 1), in_keys=["observation"])
+    data = n_step_transitions(trajectories(2, 30, seed=2), 3, GAMMA).reshape(-1)
+    estimator = TD0Estimator(gamma=GAMMA, value_network=value)
+    target = estimator.value_estimate(data)
+    with torch.no_grad():
+        next_value = value(data["next"].clone())["state_value"]
+    m = data["steps_to_next_obs"]
+    live = (~data["next", "terminated"]).float()
+    expected = data["next", "reward"] + GAMMA**m * live * next_value
+    assert torch.allclose(target, expected, atol=1e-5)
+
+
+def test_n_steps_must_fit_one_collection():
+    with pytest.raises(ValueError, match="n_steps"):
+        make_config("sac", "paper", n_steps=0)
+    with pytest.raises(ValueError, match="steps per env of one collection"):
+        make_config("td3", "paper", n_steps=11, num_envs=100, frames_per_batch=1000)
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_off_policy_agents_train_with_n_step_targets(algo, tmp_path):
+    cfg = make_config(
+        algo,
+        "paper",
+        scenario="compound",
+        n_steps=3,
+        total_steps=400,
+        num_envs=4,
+        start_steps=100,
+        frames_per_batch=100,
+        batch_size=32,
+        hidden=(32, 32),
+        updates_per_step=0.5,
+        eval_every=400,
+        eval_episodes=2,
+        final_eval_episodes=4,
+        logger="none",
+        checkpoint_every=0,
+        threads=1,
+        out=str(tmp_path),
+        run_name=f"{algo}_n3",
+    )
+    result = train(cfg, progress=False)
+    assert result["summary"]["frames"] == 400
+    assert result["summary"]["updates"] == 150
+    assert 0.0 <= result["eval"]["success_rate"] <= 100.0
