@@ -33,7 +33,7 @@ from torchrl.modules import (
 from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, TD3Loss
 from torchrl.objectives.value import GAE
 
-from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, TrainConfig
+from dockingrl.agents.config import ACTIVATIONS, PPOConfig, SACConfig, TD3Config, TrainConfig
 
 #: what an off-policy replay buffer stores of each transition
 TRANSITION_KEYS = (
@@ -104,9 +104,6 @@ def observation_scale(obs_dim: int, max_dist: float, normalize: bool) -> torch.T
     return scale
 
 
-ACTIVATION_CLASSES = {"relu": nn.ReLU, "tanh": nn.Tanh}
-
-
 def mlp(
     in_features: int,
     out_features: int,
@@ -123,7 +120,7 @@ def mlp(
         in_features=in_features,
         out_features=out_features,
         num_cells=list(hidden),
-        activation_class=ACTIVATION_CLASSES[activation],
+        activation_class=getattr(nn, ACTIVATIONS[activation]),
     )
     if orthogonal_gain is not None:
         linears = [m for m in net.modules() if isinstance(m, nn.Linear)]

@@ -14,7 +14,8 @@ from dockingrl.scenarios import SCENARIOS
 
 LOGGERS = ("wandb", "csv", "none")
 LR_SCHEDULES = ("constant", "linear")
-ACTIVATIONS = ("relu", "tanh")
+#: hidden-layer activations: option name -> ``torch.nn`` class name
+ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh"}
 
 
 def _doc(text: str, **kwargs) -> Any:
