@@ -1,0 +1,71 @@
+"""Periodic success rates of several training runs in one figure, and their table as JSON.
+
+Usage: ``python scripts/compare_curves.py RUN_DIR [RUN_DIR ...] --out PREFIX [--key KEY]``
+
+Each ``RUN_DIR`` holds a ``curves.csv`` (``dockingrl train``); ``--labels`` names them in the
+legend (default: the folder names). Writes ``PREFIX.png`` and ``PREFIX.json`` (the curves, the
+command and the runs' commands where their ``summary.json`` or ``config.json`` has them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from dockingrl.io import atomic_write, write_json
+from dockingrl.training import read_curves
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", help="run folders with a curves.csv")
+    parser.add_argument("--out", required=True, help="output prefix (PREFIX.png, PREFIX.json)")
+    parser.add_argument("--labels", nargs="+", help="legend labels, one per run")
+    parser.add_argument("--key", default="eval/success_rate", help="curve to compare")
+    parser.add_argument("--title", default="", help="figure title")
+    args = parser.parse_args(argv)
+    labels = args.labels or [Path(r).name for r in args.runs]
+    if len(labels) != len(args.runs):
+        parser.error("give one label per run")
+    curves = {}
+    for run, label in zip(args.runs, labels, strict=True):
+        points = read_curves(run).get(args.key)
+        if not points:
+            parser.error(f"{run}: no {args.key!r} in its curves.csv")
+        summary = Path(run) / "summary.json"
+        curves[label] = {
+            "run": run,
+            "points": points,
+            "summary": json.loads(summary.read_text()) if summary.exists() else None,
+            "config": json.loads((Path(run) / "config.json").read_text()),
+        }
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for label, curve in curves.items():
+        steps, values = zip(*curve["points"], strict=True)
+        ax.plot([s / 1e3 for s in steps], values, marker=".", label=label)
+    ax.set_xlabel("env steps (thousands)")
+    ax.set_ylabel(args.key)
+    ax.set_title(args.title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    command = "python " + " ".join(["scripts/compare_curves.py", *(argv or sys.argv[1:])])
+    fig.text(0.01, 0.005, command, fontsize=6, wrap=True)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    prefix = Path(args.out)
+    prefix.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(prefix.with_suffix(".png"), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    write_json(prefix.with_suffix(".json"), {"command": command, "key": args.key, "runs": curves})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
