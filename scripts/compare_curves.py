@@ -25,22 +25,33 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--labels", nargs="+", help="legend labels, one per run")
     parser.add_argument("--key", default="eval/success_rate", help="curve to compare")
     parser.add_argument("--title", default="", help="figure title")
+    parser.add_argument(
+        "--machine", default="", help="where the runs trained (default: each run's summary)"
+    )
     args = parser.parse_args(argv)
     labels = args.labels or [Path(r).name for r in args.runs]
     if len(labels) != len(args.runs):
         parser.error("give one label per run")
     curves = {}
     for run, label in zip(args.runs, labels, strict=True):
-        points = read_curves(run).get(args.key)
+        run_curves = read_curves(run)
+        points = run_curves.get(args.key)
         if not points:
             parser.error(f"{run}: no {args.key!r} in its curves.csv")
         summary = Path(run) / "summary.json"
+        elapsed = run_curves.get("time/elapsed_s", [(points[-1][0], None)])[-1]
         curves[label] = {
             "run": run,
+            "frames": elapsed[0],
+            "train_wall_clock_s": elapsed[1],
             "points": points,
             "summary": json.loads(summary.read_text()) if summary.exists() else None,
             "config": json.loads((Path(run) / "config.json").read_text()),
         }
+
+    machine = args.machine or "; ".join(
+        sorted({c["summary"]["machine"] for c in curves.values() if c["summary"]})
+    )
 
     import matplotlib
 
@@ -50,20 +61,26 @@ def main(argv: list[str] | None = None) -> int:
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for label, curve in curves.items():
         steps, values = zip(*curve["points"], strict=True)
-        ax.plot([s / 1e3 for s in steps], values, marker=".", label=label)
+        seconds = curve["train_wall_clock_s"]
+        spent = f", {seconds:.0f} s" if seconds is not None else ""
+        legend = f"{label} ({curve['frames'] / 1e3:.0f} k steps{spent})"
+        ax.plot([s / 1e3 for s in steps], values, marker=".", label=legend)
     ax.set_xlabel("env steps (thousands)")
     ax.set_ylabel(args.key)
     ax.set_title(args.title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     command = "python " + " ".join(["scripts/compare_curves.py", *(argv or sys.argv[1:])])
-    fig.text(0.01, 0.005, command, fontsize=6, wrap=True)
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    fig.text(0.01, 0.005, f"{command}  |  runs on: {machine}", fontsize=6, wrap=True)
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
     prefix = Path(args.out)
     prefix.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(prefix.with_suffix(".png"), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
-    write_json(prefix.with_suffix(".json"), {"command": command, "key": args.key, "runs": curves})
+    write_json(
+        prefix.with_suffix(".json"),
+        {"command": command, "machine": machine, "key": args.key, "runs": curves},
+    )
     return 0
 
 

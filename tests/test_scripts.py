@@ -41,6 +41,7 @@ def test_compare_curves_writes_the_figure_and_the_table(tmp_path):
     assert table["runs"]["A"]["points"] == [[10000, 0.0], [20000, 20.0], [30000, 45.0]]
     assert table["runs"]["B"]["points"] == [[10000, 5.0], [20000, 10.0]]
     assert "compare_curves.py" in table["command"]
+    assert table["runs"]["A"]["frames"] == 30000
 
 
 def test_compare_curves_refuses_a_run_without_the_curve(tmp_path):
