@@ -74,7 +74,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     start = time.perf_counter()
     metrics = evaluate(
-        policy, scenario, args.episodes, seed=args.seed, progress=not args.quiet, **env_kwargs
+        policy,
+        scenario,
+        args.episodes,
+        seed=args.seed,
+        progress=not args.quiet,
+        stochastic=args.stochastic,
+        **env_kwargs,
     )
     metrics.update(policy=args.policy, command=command_line())
     print(table_row(name, scenario, metrics))
@@ -205,6 +211,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="m/s added to the 0.3 m/s contact-speed limit of the success test",
     )
     ev.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
+    ev.add_argument(
+        "--stochastic",
+        action="store_true",
+        help="sample the agent's actions as in training instead of taking their mode "
+        "(the 500-episode evaluation only; map and trajectories stay deterministic)",
+    )
     ev.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=cmd_eval)

@@ -55,8 +55,10 @@ def run_episodes(
     *,
     record_trajectories: bool = False,
     progress: bool = False,
+    stochastic: bool = False,
 ) -> dict[str, torch.Tensor]:
-    """Run one episode in every env of the batch at once, with a deterministic policy.
+    """Run one episode in every env of the batch at once, with a deterministic policy (a
+    TorchRL actor's mode; ``stochastic=True``: its samples, as while training).
 
     Stops when every env is done (at most ``max_steps``); an env that finished keeps stepping
     but its outcome is frozen at its first ``done``.
@@ -84,7 +86,8 @@ def run_episodes(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=max_steps, desc="evaluating", unit="step", leave=False)
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+    mode = ExplorationType.RANDOM if stochastic else ExplorationType.DETERMINISTIC
+    with torch.no_grad(), set_exploration_type(mode):
         td = env.reset()
         out["ocean_current"] = td["ocean_current"].clone()
         out["start"] = td["true_state"][:, :3].clone()
@@ -188,6 +191,7 @@ def evaluate(
     out: str | Path | None = None,
     device: torch.device | str = "cpu",
     progress: bool = False,
+    stochastic: bool = False,
     **env_kwargs,
 ) -> dict:
     """Evaluate a deterministic policy on ``num_episodes`` episodes, all run as one batch.
@@ -205,10 +209,13 @@ def evaluate(
         out: if given, the metrics are also written there as JSON (atomically).
         device: torch device for a scenario built here.
         progress: show a progress bar.
+        stochastic: sample a TorchRL actor's actions (``ExplorationType.RANDOM``) instead of
+            taking its mode; the paper's metrics use the deterministic policy.
         env_kwargs: passed to :func:`~dockingrl.make_env` (``config``, ``filter_params``, ...).
 
     Returns:
-        The metrics of :func:`summarize`, plus ``scenario``, ``seed`` and ``wall_clock_s``.
+        The metrics of :func:`summarize`, plus ``scenario``, ``seed``, ``policy_mode`` and
+        ``wall_clock_s``.
     """
     if isinstance(scenario, str):
         if num_episodes < 1:
@@ -218,12 +225,13 @@ def evaluate(
     else:
         env, name = scenario, "custom"
     start = time.perf_counter()
-    outcomes = run_episodes(policy, env, progress=progress)
+    outcomes = run_episodes(policy, env, progress=progress, stochastic=stochastic)
     sim = base_env(env)
     speed_limit = sim.config.entry_speed_max + sim.config.contact_speed_tolerance
     metrics = {
         "scenario": name,
         "seed": seed,
+        "policy_mode": "stochastic" if stochastic else "deterministic",
         **summarize(outcomes, sim.config.dt, speed_limit),
         "wall_clock_s": time.perf_counter() - start,
         "machine": describe_machine(),

@@ -110,3 +110,24 @@ def test_bad_evaluation_arguments():
         evaluate(ManagedSurgePolicy(), "calm", 5)
     with pytest.raises(SystemExit):
         cli_main(["eval", "--policy", "/nonexistent/policy.pt", "--quiet"])
+
+
+def test_stochastic_evaluation_samples_the_policy_and_says_so():
+    """The policy sees ExplorationType.RANDOM only when asked; the metrics name the mode."""
+    from torchrl.envs.utils import ExplorationType, exploration_type
+
+    seen = []
+
+    def act(observation):
+        seen.append(exploration_type())
+        return torch.zeros(*observation.shape[:-1], 2, dtype=observation.dtype)
+
+    policy = TensorDictModule(act, in_keys=["observation"], out_keys=["action"])
+    config = DockingConfig(max_steps=3)
+    deterministic = evaluate(policy, "noise", 4, seed=0, config=config)
+    assert set(seen) == {ExplorationType.DETERMINISTIC}
+    assert deterministic["policy_mode"] == "deterministic"
+    seen.clear()
+    stochastic = evaluate(policy, "noise", 4, seed=0, config=config, stochastic=True)
+    assert set(seen) == {ExplorationType.RANDOM}
+    assert stochastic["policy_mode"] == "stochastic"
