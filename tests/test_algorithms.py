@@ -93,21 +93,33 @@ def agent_with(n: int, num_envs: int = 3):
 
 def test_collections_are_joined_so_no_transition_is_lost_or_cut():
     """Two collections give the transitions of their concatenation: the last n - 1 steps of
-    the first wait for the second, and a checkpoint carries them."""
+    the first wait for the second."""
+    data = trajectories(3, 20, seed=1)
+    agent = agent_with(4)
+    agent.learn(data[:, :10])
+    first = len(agent.replay_buffer)
+    agent.learn(data[:, 10:])
+    stored = agent.replay_buffer[:]
+    whole = n_step_transitions(data, 4, GAMMA)
+    expected = torch.cat((whole[:, :7].reshape(-1), whole[:, 7:].reshape(-1)))
+    assert first == 3 * 7 and len(stored) == len(expected) == 3 * (20 - 3)
+    for key in (("next", "reward"), ("next", "observation"), "action", "steps_to_next_obs"):
+        assert torch.allclose(stored[key], expected[key])
+
+
+def test_a_resumed_agent_does_not_join_steps_across_the_restart():
+    """A resumed run restarts its envs' episodes: the steps waiting at the checkpoint have no
+    continuation, so the first collection after it starts its own windows."""
     data = trajectories(3, 20, seed=1)
     agent = agent_with(4)
     agent.learn(data[:, :10])
     resumed = agent_with(4)
     resumed.load_state_dict(agent.state_dict())
     resumed.learn(data[:, 10:])
-    whole = n_step_transitions(data, 4, GAMMA)
-    for stored, expected in (
-        (agent.replay_buffer[:], whole[:, :7].reshape(-1)),
-        (resumed.replay_buffer[:], whole[:, 7:].reshape(-1)),
-    ):
-        assert len(stored) == len(expected)
-        for key in (("next", "reward"), ("next", "observation"), "action", "steps_to_next_obs"):
-            assert torch.allclose(stored[key], expected[key])
+    expected = n_step_transitions(data[:, 10:], 4, GAMMA).reshape(-1)
+    stored = resumed.replay_buffer[:]
+    assert len(stored) == len(expected) == 3 * 7
+    assert torch.allclose(stored["next", "reward"], expected["next", "reward"])
 
 
 def test_one_step_agents_store_the_collected_transitions_unchanged():

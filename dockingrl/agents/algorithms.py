@@ -240,7 +240,9 @@ class Agent:
     def _transitions(self, data: TensorDictBase) -> TensorDictBase:
         """What the replay buffer stores of ``data``: one-step transitions, or with
         ``n_steps > 1`` the n-step ones of :func:`n_step_transitions`, the last
-        ``n_steps - 1`` steps waiting for the next collection to complete their window."""
+        ``n_steps - 1`` steps waiting for the next collection to complete their window. A
+        checkpoint does not keep those steps: a resumed run restarts its envs' episodes, so
+        they have no continuation."""
         n = self.config.n_steps
         if n == 1:
             return data
@@ -350,8 +352,6 @@ class Agent:
         }
         if "generator" in self.extra:
             state["generator"] = self.extra["generator"].get_state()
-        if "n_step_tail" in self.extra:
-            state["n_step_tail"] = self.extra["n_step_tail"]
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -361,8 +361,6 @@ class Agent:
         self.updates = state["updates"]
         if "generator" in state:
             self.extra["generator"].set_state(state["generator"])
-        if "n_step_tail" in state:
-            self.extra["n_step_tail"] = state["n_step_tail"]
 
 
 def _scalar(value: torch.Tensor) -> float:
