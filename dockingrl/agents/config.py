@@ -18,6 +18,14 @@ LR_SCHEDULES = ("constant", "linear")
 ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh"}
 
 
+#: the off-policy configs' n_steps field
+N_STEPS_DOC = (
+    "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
+    "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
+    "targets; not in the paper)"
+)
+
+
 def _doc(text: str, **kwargs) -> Any:
     return field(metadata={"doc": text}, **kwargs)
 
@@ -160,12 +168,7 @@ class SACConfig(TrainConfig):
     tau: float = _doc("target-network soft-update rate (every update)", default=0.005)
     updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
     frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
-    n_steps: int = _doc(
-        "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
-        "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
-        "targets; not in the paper)",
-        default=1,
-    )
+    n_steps: int = _doc(N_STEPS_DOC, default=1)
 
     def validate(self) -> None:
         super().validate()
@@ -194,12 +197,7 @@ class TD3Config(TrainConfig):
     target_noise_clip: float = _doc("target policy smoothing noise clip", default=0.5)
     exploration_sigma: float = _doc("Gaussian action-noise sigma while collecting", default=0.2)
     frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
-    n_steps: int = _doc(
-        "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
-        "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
-        "targets; not in the paper)",
-        default=1,
-    )
+    n_steps: int = _doc(N_STEPS_DOC, default=1)
 
     def validate(self) -> None:
         super().validate()
