@@ -158,7 +158,7 @@ def test_off_policy_agents_train_with_n_step_targets(algo, tmp_path):
     cfg = make_config(
         algo,
         "paper",
-        scenario="compound",
+        scenario="no_noise",
         n_steps=3,
         total_steps=400,
         num_envs=4,

@@ -1,12 +1,23 @@
 """Smoke runs of the scripts in scripts/."""
 
 import csv
+import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script(name: str):
+    """A script of scripts/ as a module (its ``main(argv)`` runs in this process)."""
+    spec = importlib.util.spec_from_file_location(name.removesuffix(".py"), ROOT / "scripts" / name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def run_script(name: str, *args: str) -> subprocess.CompletedProcess:
@@ -34,8 +45,8 @@ def test_compare_curves_writes_the_figure_and_the_table(tmp_path):
     a = fake_run(tmp_path / "a", [0.0, 20.0, 45.0])
     b = fake_run(tmp_path / "b", [5.0, 10.0])
     out = tmp_path / "cmp" / "success"
-    done = run_script("compare_curves.py", str(a), str(b), "--out", str(out), "--labels", "A", "B")
-    assert done.returncode == 0, done.stderr
+    argv = [str(a), str(b), "--out", str(out), "--labels", "A", "B"]
+    assert load_script("compare_curves.py").main(argv) == 0
     assert out.with_suffix(".png").stat().st_size > 1000
     table = json.loads(out.with_suffix(".json").read_text())
     assert table["runs"]["A"]["points"] == [[10000, 0.0], [20000, 20.0], [30000, 45.0]]
@@ -44,11 +55,13 @@ def test_compare_curves_writes_the_figure_and_the_table(tmp_path):
     assert table["runs"]["A"]["frames"] == 30000
 
 
-def test_compare_curves_refuses_a_run_without_the_curve(tmp_path):
+def test_compare_curves_refuses_a_run_without_the_curve(tmp_path, capsys):
     a = fake_run(tmp_path / "a", [1.0])
-    done = run_script("compare_curves.py", str(a), "--out", str(tmp_path / "x"), "--key", "nope")
-    assert done.returncode != 0
-    assert "no 'nope'" in done.stderr
+    with pytest.raises(SystemExit):
+        load_script("compare_curves.py").main(
+            [str(a), "--out", str(tmp_path / "x"), "--key", "nope"]
+        )
+    assert "no 'nope'" in capsys.readouterr().err
     assert not (tmp_path / "x.png").exists()
 
 
