@@ -194,7 +194,8 @@ def evaluate(
     stochastic: bool = False,
     **env_kwargs,
 ) -> dict:
-    """Evaluate a deterministic policy on ``num_episodes`` episodes, all run as one batch.
+    """Evaluate a policy (deterministic unless ``stochastic``) on ``num_episodes`` episodes,
+    all run as one batch.
 
     Args:
         policy: reads a tensordict, writes ``action`` (a TorchRL actor, a
