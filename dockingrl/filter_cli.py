@@ -49,20 +49,49 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         help="learn a Q that grows with the gap between commanded and estimated velocity "
         "(not in the paper; see dockingrl.transforms.ProcessNoise)",
     )
+    parser.add_argument(
+        "--context-noise",
+        action="store_true",
+        help="learn Q and R scaled by the manoeuvre, the range and the filter's age (not in "
+        "the paper; see dockingrl.transforms.NoiseContext); filter-ablation adds such rows, "
+        "each starting from the constant fit of its objective",
+    )
+    parser.add_argument(
+        "--context-epochs",
+        type=int,
+        default=None,
+        help="filter-ablation: passes of the context fits, after the constant fit they start "
+        "from (default: --epochs)",
+    )
 
 
-def _fit(args, objective: str, config, data, log=None, manoeuvre: bool | None = None):
+def _fit(
+    args,
+    objective: str,
+    config,
+    data,
+    log=None,
+    manoeuvre: bool | None = None,
+    context: bool | None = None,
+    init=None,
+):
+    """Fit a filter; ``init``: a filter whose ``Q`` and ``R`` parameters to start from."""
     from dockingrl.scenarios import make_filter
 
     if manoeuvre is None:
         manoeuvre = args.manoeuvre_noise
-    ekf = make_filter(config, manoeuvre_noise=manoeuvre)
+    if context is None:
+        context = args.context_noise
+    ekf = make_filter(config, manoeuvre_noise=manoeuvre, context_noise=context)
+    if init is not None:
+        ekf.process_noise.load_state_dict(init.process_noise.state_dict())
+        ekf.measurement_noise.load_state_dict(init.measurement_noise.state_dict())
     fit = FilterFit(
         objective=objective,
         num_envs=args.num_envs,
         steps=args.steps,
         window=args.window,
-        epochs=args.epochs,
+        epochs=args.context_epochs if init is not None and args.context_epochs else args.epochs,
         lr=args.lr,
         behaviour=args.behaviour,
         seed=args.seed,
@@ -143,10 +172,11 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
         f"Command: `{command_line()}`",
         "",
         "| condition | filter | position RMSE m | heading RMSE rad | surge RMSE m/s | "
-        "yaw-rate RMSE rad/s | mean NEES (5 = consistent) | steps in 95 % NEES interval | "
+        "yaw-rate RMSE rad/s | mean NEES (5 = consistent) | its 95 % CI over the runs | "
+        "steps in 95 % NEES interval | "
         "time steps whose run-averaged NEES is in its 95 % region | "
         "e_i^2/P_ii: x / y / heading / surge / yaw rate (1 = consistent) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for condition, scale in (("nominal", 1.0), ("mismatched", args.mismatch)):
         config = mismatched_config(scale)
@@ -157,21 +187,40 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
             args.num_envs, args.steps, config=config, behaviour=args.behaviour, seed=HELD_OUT_SEED
         )
         filters = {"hand-tuned (Tables 1-2)": make_filter(config)}
-        variants = [(objective, False) for objective in OBJECTIVES]
-        if args.manoeuvre_noise:
-            variants += [(objective, True) for objective in ("nll", "supervised")]
-        for objective, manoeuvre in variants:
-            ekf, _ = _fit(args, objective, config, data, manoeuvre=manoeuvre)
-            suffix = "_manoeuvre" if manoeuvre else ""
+        variants = [(objective, "") for objective in OBJECTIVES]
+        for flag, kind in ((args.manoeuvre_noise, "manoeuvre"), (args.context_noise, "context")):
+            if flag:
+                variants += [(objective, kind) for objective in ("nll", "supervised")]
+        constant = {}
+        for objective, kind in variants:
+            ekf, _ = _fit(
+                args,
+                objective,
+                config,
+                data,
+                manoeuvre=kind == "manoeuvre",
+                context=kind == "context",
+                init=constant.get(objective) if kind == "context" else None,
+            )
+            if not kind:
+                constant[objective] = ekf
             save_filter_params(
                 ekf,
-                out / f"{condition}_{objective}{suffix}.pt",
+                out / f"{condition}_{objective}{'_' + kind if kind else ''}.pt",
                 objective=objective,
                 condition=condition,
-                manoeuvre_noise=manoeuvre,
+                manoeuvre_noise=kind == "manoeuvre",
+                context_noise=kind == "context",
                 command=command_line(),
             )
-            label = f"learned, {objective}" + (", manoeuvre Q" if manoeuvre else "")
+            label = (
+                f"learned, {objective}"
+                + {
+                    "": "",
+                    "manoeuvre": ", manoeuvre Q",
+                    "context": ", context Q and R",
+                }[kind]
+            )
             filters[label] = ekf
         rows = {}
         for name, ekf in filters.items():
@@ -179,7 +228,13 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
             r = rows[name]
             lines.append(
                 f"| {condition} (x{scale:g} range/bearing noise) | {name} | "
-                + " | ".join(f"{r[k]:.4f}" if k != "nees_mean" else f"{r[k]:.2f}" for k in ROWS)
+                + " | ".join(
+                    f"{r[k]:.2f} | {r['nees_mean_ci95_over_runs'][0]:.2f}-"
+                    f"{r['nees_mean_ci95_over_runs'][1]:.2f}"
+                    if k == "nees_mean"
+                    else f"{r[k]:.4f}"
+                    for k in ROWS
+                )
                 + " | "
                 + " / ".join(f"{v:.2f}" for v in r["normalized_error_per_component"])
                 + " |"
@@ -192,7 +247,10 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
         f"Held-out rollouts: {args.num_envs} envs x {args.steps} steps, seed {HELD_OUT_SEED} "
         f"(training rollouts: seed {args.seed}), behaviour `{args.behaviour}`; the first 10 steps "
         f"of each episode are left out. 95 % bounds of the mean NEES over this many samples: "
-        f"[{bounds[0]:.2f}, {bounds[1]:.2f}]; per-step 95 % interval of chi-square(5): "
+        f"[{bounds[0]:.2f}, {bounds[1]:.2f}] (they treat the correlated steps of a run as "
+        f"independent); the CI column: mean NEES +- 1.96 standard errors of the "
+        f"{args.num_envs} per-env means (the envs are independent runs; a consistent filter's "
+        f"CI holds 5); per-step 95 % interval of chi-square(5): "
         f"[0.83, 12.83]. Second-last column: the Monte-Carlo consistency test (Bar-Shalom, "
         f"Li and Kirubarajan 2001, Sec. 5.4): at each time index the NEES averaged over the "
         f"{args.num_envs} envs against the 95 % region of such an average (a consistent filter "

@@ -232,3 +232,75 @@ def test_manoeuvre_q_is_fitted_saved_and_loaded_into_any_filter(tmp_path, rollou
     td["step_count"] = steps["step_count"].squeeze(-1)
     means = run_filter(env.transform, td, dt=0.2)[0]
     torch.testing.assert_close(means[1:], steps["next", "ekf_mean"][:-1], atol=1e-4, rtol=1e-4)
+
+
+def test_context_noise_starts_as_the_constant_filter_and_keeps_q_and_r_positive():
+    from dockingrl.transforms import NoiseContext
+
+    gen = torch.Generator().manual_seed(2)
+    plain = make_filter(DockingConfig())
+    ekf = make_filter(DockingConfig(), context_noise=True)
+    mean, action = torch.randn(16, 5, generator=gen), torch.randn(16, 2, generator=gen)
+    z = torch.rand(16, 6, generator=gen) * 30
+    age = torch.randint(0, 700, (16,), generator=gen)
+    Q0, R0 = plain.noise_covariances(mean, action, z, age)
+    Q1, R1 = ekf.noise_covariances(mean, action, z, age)
+    torch.testing.assert_close(Q1, Q0.expand(16, 5, 5))
+    torch.testing.assert_close(R1, R0)
+    for _ in range(200):  # any weights, any context: Q symmetric positive-definite, R > 0
+        with torch.no_grad():
+            ekf.noise_context.q_weight.copy_(torch.randn(7, 5, generator=gen) * 4)
+            ekf.noise_context.r_weight.copy_(torch.randn(7, 6, generator=gen) * 4)
+        Q, R = ekf.noise_covariances(
+            torch.randn(8, 5, generator=gen) * 3,
+            torch.randn(8, 2, generator=gen),
+            torch.rand(8, 6, generator=gen) * 40,
+            torch.randint(0, 900, (8,), generator=gen),
+        )
+        Q = Q.double()
+        assert torch.equal(Q, Q.transpose(-1, -2))
+        assert torch.linalg.eigvalsh(Q).min() > 0
+        assert (R > 0).all() and torch.isfinite(R).all()
+    assert NoiseContext.features(mean, action, z[:, 0], age).shape == (16, 7)
+
+
+def test_context_noise_is_fitted_saved_loaded_and_agrees_with_the_env_transform(tmp_path, rollouts):
+    """Both weight matrices get gradients; a file fixes whether a loaded filter uses a context
+    model; the env's transform (its ``ekf_age`` state) and ``run_filter`` agree step by step."""
+    from torchrl.envs import TransformedEnv
+
+    from dockingrl.env import DockingEnv
+    from dockingrl.transforms.params import save_filter_params
+
+    ekf = make_filter(DockingConfig(), context_noise=True)
+    fit = FilterFit(objective="supervised", window=40, epochs=1, lr=0.05)
+    with torch.no_grad():
+        before = run_filter(ekf, rollouts[:40], objective="supervised")[3].item()
+    for _ in range(4):
+        fit_filter(ekf, fit, data=rollouts[:40].clone())
+    with torch.no_grad():
+        after = run_filter(ekf, rollouts[:40], objective="supervised")[3].item()
+    assert after < before
+    assert ekf.noise_context.q_weight.abs().sum() > 0
+    assert ekf.noise_context.r_weight.abs().sum() > 0
+    save_filter_params(ekf, tmp_path / "ctx.pt")
+    loaded = make_filter(DockingConfig()).load_filter_params(tmp_path / "ctx.pt")
+    assert loaded.context_noise
+    torch.testing.assert_close(loaded.noise_context.q_weight, ekf.noise_context.q_weight)
+    save_filter_params(make_filter(DockingConfig()), tmp_path / "plain.pt")
+    assert (
+        not make_filter(DockingConfig(), context_noise=True)
+        .load_filter_params(tmp_path / "plain.pt")
+        .context_noise
+    )
+
+    env = TransformedEnv(DockingEnv(4, seed=5), loaded)
+    steps = env.rollout(30, break_when_any_done=False).transpose(0, 1)  # (30, 4)
+    assert torch.equal(
+        steps["next", "ekf_age"].squeeze(-1), steps["next", "step_count"].squeeze(-1).float()
+    )
+    td = steps.select("observation", "action", "ocean_current").clone()
+    td["step_count"] = steps["step_count"].squeeze(-1)
+    means, covs = run_filter(env.transform, td, dt=0.2)[:2]
+    torch.testing.assert_close(means[1:], steps["next", "ekf_mean"][:-1], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(covs[1:], steps["next", "ekf_cov"][:-1], atol=1e-6, rtol=1e-4)

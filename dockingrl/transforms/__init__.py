@@ -14,6 +14,7 @@ from dockingrl.transforms.filtering import (
     CompoundObservation,
     EKFTransform,
     MeasurementNoise,
+    NoiseContext,
     ProcessNoise,
 )
 from dockingrl.transforms.shaping import ContactSpeedPenalty, MissPenaltyFloor
@@ -24,6 +25,7 @@ __all__ = [
     "MissPenaltyFloor",
     "EKFTransform",
     "MeasurementNoise",
+    "NoiseContext",
     "ProcessNoise",
     "ekf_predict",
     "ekf_step",

@@ -128,6 +128,74 @@ class MeasurementNoise(nn.Module):
         return sigma**2 + self.eps
 
 
+#: Inputs of :class:`NoiseContext`, each scaled to about unit range: the velocity gaps of the
+#: manoeuvre (applied command minus the estimate), the estimated yaw rate and surge, the
+#: measured range and the filter's age (steps since its first fix).
+CONTEXT_FEATURES = (
+    "surge_gap",  # |v_d - nu| / 0.5 m/s
+    "yaw_gap",  # |w_d - w| / 0.2 rad/s
+    "yaw_rate",  # |w| / 0.2 rad/s
+    "surge",  # |nu| / 0.5 m/s
+    "log_range",  # log(max(rho_measured, 0.5 m) / 10 m)
+    "fresh",  # exp(-k / 100), k the filter's steps since its first fix
+    "age",  # min(k, 600) / 300
+)
+#: bound on each log-scale, so that no input can drive a variance to 0 or infinity
+MAX_LOG_SCALE = 12.0
+
+
+class NoiseContext(nn.Module):
+    """Context-dependent scaling of ``Q`` and ``R`` (not in the paper).
+
+    Eq. 24's first-order velocity model misses the vehicle's PID saturation and integrator,
+    so its error depends on the manoeuvre and on the phase of the approach; with a constant
+    ``Q`` a filter is overconfident while it turns towards the DS and underconfident in the
+    slow final approach. Here each variance is scaled by a log-linear function of the context
+    features ``f`` (:data:`CONTEXT_FEATURES`, all known to the filter on a real vehicle):
+
+        ``Q(f) = S_q Q S_q``, ``S_q = diag(exp(0.5 f W_q))``;
+        ``R(f) = R exp(f W_r)`` (``R`` diagonal),
+
+    with ``W_q`` ``(7, 5)`` and ``W_r`` ``(7, 6)`` learned, initialised at zero (the constant
+    ``Q`` and ``R``). A congruence with a positive diagonal keeps ``Q`` positive-definite and a
+    positive factor keeps ``R`` positive, whatever the weights; each log-scale is clipped to
+    ``+-MAX_LOG_SCALE``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.q_weight = nn.Parameter(torch.zeros(len(CONTEXT_FEATURES), STATE_DIM))
+        self.r_weight = nn.Parameter(torch.zeros(len(CONTEXT_FEATURES), MEASUREMENT_DIM))
+
+    @staticmethod
+    def features(
+        mean: torch.Tensor, action: torch.Tensor, measured_range: torch.Tensor, age: torch.Tensor
+    ) -> torch.Tensor:
+        """``(..., 7)`` features from the prior ``mean`` ``(..., 5)``, the applied ``action``
+        ``(..., 2)``, the measured range ``(...)`` and the filter's ``age`` in steps ``(...)``."""
+        age = age.to(mean.dtype)
+        return torch.stack(
+            (
+                (action[..., 0] - mean[..., 3]).abs() / 0.5,
+                (action[..., 1] - mean[..., 4]).abs() / 0.2,
+                mean[..., 4].abs() / 0.2,
+                mean[..., 3].abs() / 0.5,
+                torch.log(measured_range.to(mean.dtype).clamp_min(0.5) / 10.0),
+                torch.exp(-age / 100.0),
+                age.clamp_max(600.0) / 300.0,
+            ),
+            dim=-1,
+        )
+
+    def forward(
+        self, mean: torch.Tensor, action: torch.Tensor, measured_range: torch.Tensor, age
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Log-scales of ``Q``'s state components ``(..., 5)`` and of ``R``'s ``(..., 6)``."""
+        f = self.features(mean, action, measured_range, age)
+        q = (f @ self.q_weight.to(f.dtype)).clamp(-MAX_LOG_SCALE, MAX_LOG_SCALE)
+        r = (f @ self.r_weight.to(f.dtype)).clamp(-MAX_LOG_SCALE, MAX_LOG_SCALE)
+        return q, r
+
+
 class EKFTransform(Transform):
     """Filters the noisy observation with the EKF of Sec. 3.5 (eqs. 22-34).
 
@@ -151,6 +219,10 @@ class EKFTransform(Transform):
         manoeuvre_noise: let ``Q`` grow with the gap between commanded and estimated
             velocity (:class:`ProcessNoise`, not in the paper); a loaded parameter file sets
             this to what it was fitted with.
+        context_noise: scale ``Q`` and ``R`` with the manoeuvre, the range and the filter's
+            age (:class:`NoiseContext`, not in the paper); a loaded parameter file sets this
+            to what it was fitted with. The age (steps since the filter's first fix) is kept
+            as state ``ekf_age`` either way.
         action_low, action_high: bounds the env clips the action to; the filter predicts with
             the clipped action that was really applied (``None``: as given).
         observation_key, action_key, current_key, out_key: tensordict keys.
@@ -175,6 +247,7 @@ class EKFTransform(Transform):
         measurement_noise_std: Sequence[float] = MEASUREMENT_NOISE_STD,
         learnable: bool = False,
         manoeuvre_noise: bool = False,
+        context_noise: bool = False,
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
         observation_key: str = "observation",
@@ -192,10 +265,12 @@ class EKFTransform(Transform):
             current_key,
         )
         self.out_key = out_key
-        self.mean_key, self.cov_key = "ekf_mean", "ekf_cov"
+        self.mean_key, self.cov_key, self.age_key = "ekf_mean", "ekf_cov", "ekf_age"
         self.dt, self.k_v, self.k_w = dt, k_v, k_w
         self.process_noise = ProcessNoise(process_noise_std, manoeuvre=manoeuvre_noise)
         self.measurement_noise = MeasurementNoise(measurement_noise_std)
+        self.noise_context: NoiseContext | None = None
+        self.set_context_noise(context_noise)
         self.set_learnable(learnable)
         bounds = None
         if (action_low is None) != (action_high is None):
@@ -214,7 +289,38 @@ class EKFTransform(Transform):
         return self
 
     def noise_parameters(self) -> list[nn.Parameter]:
-        return [*self.process_noise.parameters(), *self.measurement_noise.parameters()]
+        context = [] if self.noise_context is None else list(self.noise_context.parameters())
+        return [*self.process_noise.parameters(), *self.measurement_noise.parameters(), *context]
+
+    @property
+    def context_noise(self) -> bool:
+        """Whether ``Q`` and ``R`` are scaled by a :class:`NoiseContext`."""
+        return self.noise_context is not None
+
+    def set_context_noise(self, enabled: bool) -> EKFTransform:
+        """Add a :class:`NoiseContext` (zero weights: ``Q`` and ``R`` unchanged) or drop it."""
+        if enabled and self.noise_context is None:
+            learnable = self.measurement_noise.log_std.requires_grad
+            device = self.measurement_noise.log_std.device
+            self.noise_context = NoiseContext().to(device).requires_grad_(learnable)
+        elif not enabled:
+            self.noise_context = None
+        return self
+
+    def noise_covariances(
+        self, mean: torch.Tensor, action: torch.Tensor, z: torch.Tensor, age: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``Q`` ``(5, 5)`` or ``(..., 5, 5)`` and the diagonal of ``R`` ``(..., 6)`` for a
+        step from the prior ``mean`` under the applied ``action`` to the measurement ``z``,
+        the filter being ``age`` steps old (the age matters to a context model only)."""
+        Q = self.process_noise(mean, action).to(z.dtype)
+        R = self.measurement_noise(z[..., 0])
+        if self.noise_context is not None:
+            q_log, r_log = self.noise_context(mean, action, z[..., 0], age)
+            half = torch.exp(0.5 * q_log)
+            Q = Q * half.unsqueeze(-1) * half.unsqueeze(-2)
+            R = R * torch.exp(r_log)
+        return Q, R
 
     def save_filter_params(self, path: str | Path) -> None:
         """Write ``Q`` and ``R``'s parameters to ``path`` (atomically)."""
@@ -236,12 +342,11 @@ class EKFTransform(Transform):
         low, high = self.action_bounds.to(action)
         return torch.maximum(torch.minimum(action, high), low)
 
-    def _filter_step(self, mean, cov, action, z, current):
+    def _filter_step(self, mean, cov, action, z, current, age):
         """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
         compiles, noise models included)."""
         action = self._applied_action(action).to(z.dtype)
-        Q = self.process_noise(mean, action).to(z.dtype)
-        R = self.measurement_noise(z[..., 0])
+        Q, R = self.noise_covariances(mean, action, z, age)
         return ekf_step(
             mean,
             cov,
@@ -262,15 +367,18 @@ class EKFTransform(Transform):
         return mean, initial_covariance(observation, current, R.to(observation.dtype))
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        age = tensordict.get(self.age_key)
         mean, cov, filtered = self._filter_step(
             tensordict.get(self.mean_key),
             tensordict.get(self.cov_key),
             tensordict.get(self.action_key),
             next_tensordict.get(self.observation_key),
             next_tensordict.get(self.current_key),
+            age.squeeze(-1),
         )
         next_tensordict.set(self.mean_key, mean)
         next_tensordict.set(self.cov_key, cov)
+        next_tensordict.set(self.age_key, age + 1)
         next_tensordict.set(self.out_key, filtered)
         return next_tensordict
 
@@ -280,14 +388,17 @@ class EKFTransform(Transform):
         z = tensordict_reset.get(self.observation_key)
         current = tensordict_reset.get(self.current_key)
         mean, cov = self._initial_state(z, current)
+        age = torch.zeros_like(z[..., :1])
         previous_mean = tensordict.get(self.mean_key, None)
         if previous_mean is not None:
             reset = _get_reset(self.parent.reset_keys[0], tensordict)
             reset = reset.reshape(*reset.shape[: z.dim() - 1], 1)
             mean = torch.where(reset, mean, previous_mean)
             cov = torch.where(reset.unsqueeze(-1), cov, tensordict.get(self.cov_key))
+            age = torch.where(reset, age, tensordict.get(self.age_key))
         tensordict_reset.set(self.mean_key, mean)
         tensordict_reset.set(self.cov_key, cov)
+        tensordict_reset.set(self.age_key, age)
         tensordict_reset.set(self.out_key, measurement_function(mean, current))
         return tensordict_reset
 
@@ -307,6 +418,7 @@ class EKFTransform(Transform):
             self.cov_key: Unbounded(
                 shape=(*shape, STATE_DIM, STATE_DIM), device=device, dtype=dtype
             ),
+            self.age_key: Unbounded(shape=(*shape, 1), device=device, dtype=dtype),
         }
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:

@@ -8,9 +8,11 @@ import torch
 
 from dockingrl.io import atomic_write
 
-FORMAT = "dockingrl.filter_params/2"
+FORMAT = "dockingrl.filter_params/3"
 #: version 1 stored ``Q``'s Cholesky factor with absolute off-diagonal entries
 FORMAT_V1 = "dockingrl.filter_params/1"
+#: version 2 had no context model (``noise_context``)
+FORMAT_V2 = "dockingrl.filter_params/2"
 
 
 def save_filter_params(transform, path: str | Path, **metadata) -> Path:
@@ -27,6 +29,9 @@ def save_filter_params(transform, path: str | Path, **metadata) -> Path:
             },
             "Q": transform.process_noise().detach().cpu(),
             "R_std": transform.measurement_noise.std().detach().cpu(),
+            "noise_context": None
+            if transform.noise_context is None
+            else {k: v.detach().cpu() for k, v in transform.noise_context.state_dict().items()},
             "metadata": metadata,
         }
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
@@ -42,7 +47,7 @@ def load_filter_params(transform, path: str | Path) -> dict:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a foreign or damaged file fails to unpickle in many ways
         raise ValueError(f"{path} is not a dockingrl filter-parameter file: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") not in (FORMAT, FORMAT_V1):
+    if not isinstance(payload, dict) or payload.get("format") not in (FORMAT, FORMAT_V2, FORMAT_V1):
         raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
     process = dict(payload["process_noise"])
     transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in process)
@@ -52,4 +57,8 @@ def load_filter_params(transform, path: str | Path) -> dict:
         process["off_diag"] = process["off_diag"] / process["log_diag"].exp()[rows]
     transform.process_noise.load_state_dict(process)
     transform.measurement_noise.load_state_dict(payload["measurement_noise"])
+    context = payload.get("noise_context")
+    transform.set_context_noise(context is not None)
+    if context is not None:
+        transform.noise_context.load_state_dict(context)
     return payload
