@@ -101,6 +101,8 @@ def test_filter_evaluation_reports_rmse_and_nees(rollouts):
         assert 0 < report[key] < 1
     low, high = report["nees_mean_bounds_95"]
     assert low < 5 < high
+    low, high = report["nees_mean_ci95_over_runs"]
+    assert low < report["nees_mean"] < high
     per_component = report["normalized_error_per_component"]
     assert len(per_component) == 5 and all(v > 0 for v in per_component)
     assert report["nees_step_bounds_95"][0] == pytest.approx(0.831, abs=0.05)
@@ -304,3 +306,24 @@ def test_context_noise_is_fitted_saved_loaded_and_agrees_with_the_env_transform(
     means, covs = run_filter(env.transform, td, dt=0.2)[:2]
     torch.testing.assert_close(means[1:], steps["next", "ekf_mean"][:-1], atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(covs[1:], steps["next", "ekf_cov"][:-1], atol=1e-6, rtol=1e-4)
+
+
+def test_filter_ablation_cli_adds_context_rows_started_from_the_constant_fit(tmp_path):
+    args = ["filter-ablation", "--num-envs", "6", "--steps", "60", "--window", "20"]
+    args += ["--epochs", "1", "--context-epochs", "1", "--threads", "1", "--context-noise"]
+    assert cli_main([*args, "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "table.md").read_text()
+    assert table.count("| learned, supervised, context Q and R |") == 2  # both conditions
+    assert "its 95 % CI over the runs" in table
+    ctx = make_filter(DockingConfig()).load_filter_params(
+        tmp_path / "mismatched_supervised_context.pt"
+    )
+    constant = make_filter(DockingConfig()).load_filter_params(
+        tmp_path / "mismatched_supervised.pt"
+    )
+    assert ctx.context_noise and not constant.context_noise
+    # one more pass from the constant fit: close to it, not equal
+    gap = (ctx.measurement_noise.log_std - constant.measurement_noise.log_std).abs().max()
+    assert 0 < gap < 0.2
+    report = json.loads((tmp_path / "ablation.json").read_text())
+    assert "learned, nll, context Q and R" in report["conditions"]["nominal"]["filters"]
