@@ -321,24 +321,22 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     """Train two PPO ``compound`` agents (``fast`` preset) in the mismatched-noise env, one
     reading the hand-tuned filter and one the learned filter, and tabulate their final
     500-episode evaluations (``ppo_mismatch.{json,md}``)."""
-    from dataclasses import fields
-
-    from dockingrl.agents.config import PPOConfig, make_config
+    from dockingrl.agents.config import make_config, parse_overrides
     from dockingrl.cli import command_line
     from dockingrl.io import atomic_write, write_json
     from dockingrl.training import train
 
-    parsers = {"int": int, "float": float, "bool": lambda v: v.lower() in ("1", "true")}
-    kinds = {f.name: str(f.type) for f in fields(PPOConfig) if str(f.type) in parsers}
-    extra = {}
-    for item in args.set:
-        name, _, value = item.partition("=")
-        if name not in kinds:
-            raise SystemExit(f"error: --set {item}: not a numeric or boolean PPO config field")
-        try:
-            extra[name] = parsers[kinds[name]](value)
-        except ValueError as exc:
-            raise SystemExit(f"error: --set {item}: {exc}") from exc
+    fixed = ("scenario", "total_steps", "range_noise_scale", "bearing_noise_scale")
+    fixed += ("filter_params", "out", "run_name", "logger", "seed")
+    try:
+        extra = parse_overrides("ppo", args.set)
+    except ValueError as exc:
+        raise SystemExit(f"error: --set {exc}") from exc
+    if set(extra) & set(fixed):
+        raise SystemExit(
+            f"error: --set cannot change {', '.join(sorted(set(extra) & set(fixed)))}: "
+            "the comparison sets it (see its own options)"
+        )
     rows, results = [], {"command": command_line(), "seeds": list(args.seeds), "agents": {}}
     for name, params in (("hand-tuned (Tables 1-2)", ""), ("learned", args.filter_params)):
         label = f"{name}: {params}" if params else name

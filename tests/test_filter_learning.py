@@ -176,7 +176,9 @@ def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path)
     table = (tmp_path / "res" / "ppo_mismatch.md").read_text()
     assert "| learned: " in table and "mean of 2" in table
     with pytest.raises(SystemExit, match="hidden"):
-        cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "hidden=3"])
+        cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "hidden=3x"])
+    with pytest.raises(SystemExit, match="seed"):
+        cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "seed=4"])
 
 
 def test_manoeuvre_q_is_the_constant_q_at_zero_gap_grows_with_it_and_stays_pd():

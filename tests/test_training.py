@@ -414,3 +414,21 @@ def test_ppo_stable_baselines3_style_policy_options(tmp_path):
     assert learned.abs().max() > 0  # moved from its initial 0 by the updates
     with pytest.raises(ValueError, match="activation"):
         tiny_config("ppo", "compound", tmp_path, activation="gelu")
+
+
+def test_field_value_overrides_are_typed_and_checked():
+    from dockingrl.agents.config import parse_overrides
+
+    parsed = parse_overrides(
+        "ppo", ["gamma=0.995", "contact_speed_penalty_cap=false", "hidden=64,32", "num_envs=32"]
+    )
+    assert parsed == {
+        "gamma": 0.995,
+        "contact_speed_penalty_cap": False,
+        "hidden": (64, 32),
+        "num_envs": 32,
+    }
+    assert make_config("ppo", "fast", **parsed).hidden == (64, 32)
+    for bad in ("num_envs=2.5", "keep_best=maybe", "alpha=0.1", "gamma", "hidden=3x"):
+        with pytest.raises(ValueError, match=bad.partition("=")[0]):
+            parse_overrides("ppo", [bad])

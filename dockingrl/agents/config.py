@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, get_type_hints
 
@@ -351,6 +352,35 @@ def make_config(algo: str, preset: str = "paper", **overrides) -> TrainConfig:
     cfg = cls(**{**PRESETS[preset][algo], **overrides})
     cfg.validate()
     return cfg
+
+
+def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
+    """``FIELD=VALUE`` strings to typed overrides of ``algo``'s config (``true``/``false``
+    for booleans, comma-separated integers for ``hidden``); raises ``ValueError`` on an
+    unknown field or a value of the wrong type."""
+    if algo not in CONFIGS:
+        raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
+    hints = get_type_hints(CONFIGS[algo])
+    known = {f.name for f in fields(CONFIGS[algo])} - {"algo"}
+    booleans = {"true": True, "1": True, "false": False, "0": False}
+    overrides: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in known:
+            raise ValueError(f"{item!r}: not FIELD=VALUE with a field of the {algo} config")
+        kind = hints[name]
+        try:
+            if kind is bool:
+                if value.lower() not in booleans:
+                    raise ValueError(f"expected true or false, got {value!r}")
+                overrides[name] = booleans[value.lower()]
+            elif kind == tuple[int, ...]:
+                overrides[name] = tuple(int(v) for v in value.split(","))
+            else:
+                overrides[name] = kind(value)
+        except ValueError as exc:
+            raise ValueError(f"{item!r}: {exc}") from exc
+    return overrides
 
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
