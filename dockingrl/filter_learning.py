@@ -129,6 +129,7 @@ def run_filter(
     state: tuple[torch.Tensor, torch.Tensor] | None = None,
     objective: str | None = None,
     dt: float = 0.2,
+    nis: list | None = None,
 ):
     """Run the filter over ``data`` (``(T, N)`` from :func:`record_rollouts`), re-initialising
     each env at the first step of its episodes, differentiably in ``Q`` and ``R``.
@@ -137,6 +138,8 @@ def run_filter(
         state: ``(mean, cov, action)`` after the step before ``data[0]`` (truncated BPTT
             carries it, detached); ``None`` initialises from ``data[0]``.
         objective: if given, also return the mean loss per step and env.
+        nis: if a list, the normalised innovation squared ``y^T S^-1 y`` of each step ``(N,)``
+            is appended to it (for the first step of an episode: NaN, no prediction).
 
     Returns:
         ``(means, covs, (mean, cov), loss)``: the estimates after each step ``(T, N, 5)``,
@@ -162,11 +165,16 @@ def run_filter(
             mean, cov, applied, current[t], Q, dt, k_v=ekf.k_v, k_w=ekf.k_w
         )
         previous_action = action[t]
-        if objective == "nll":
+        if objective == "nll" or nis is not None:
             H = measurement_jacobian(prior_mean, current[t])
             S = innovation_covariance(prior_cov, H, torch.diag_embed(R))
-            nll = gaussian_nll(innovation(prior_mean, z[t], current[t]), S)
+            y = innovation(prior_mean, z[t], current[t])
+        if objective == "nll":
+            nll = gaussian_nll(y, S)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
+        if nis is not None:
+            value = (y.unsqueeze(-2) @ torch.linalg.solve(S, y.unsqueeze(-1)))[..., 0, 0]
+            nis.append(torch.where(fresh[t], torch.full_like(value, float("nan")), value))
         new_mean, new_cov = ekf_update(prior_mean, prior_cov, z[t], current[t], R, diagonal=True)
         init_mean, init_cov = _initial(ekf, z[t], current[t])
         mean = torch.where(fresh[t].unsqueeze(-1), init_mean, new_mean)
@@ -290,9 +298,11 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
     95 % interval, and the Monte-Carlo test of Bar-Shalom, Li and Kirubarajan (2001, Sec. 5.4):
     the fraction of time indices at which the NEES averaged over the envs (independent runs)
     lies inside the 95 % region of such an average (about 95 % for a consistent filter).
+    Also the NIS of the innovations (:func:`_nis_report`; 6 for a consistent filter).
     """
+    nis_steps: list[torch.Tensor] = []
     with torch.no_grad():
-        means, covs, _, _ = run_filter(ekf, data)
+        means, covs, _, _ = run_filter(ekf, data, nis=nis_steps)
     keep = data["step_count"] >= skip
     nees_tn, per_component = normalized_errors(means, covs, data["true_state"])
     error, nees = state_error(means, data["true_state"]).double()[keep], nees_tn[keep]
@@ -326,4 +336,22 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
         # above 1 where the filter is overconfident
         "normalized_error_per_component": per_component[keep].mean(0).tolist(),
         "nees_fraction_of_steps_in_run_mean_bounds": run_averaged_nees_test(nees_tn, keep, dof),
+        **_nis_report(torch.stack(nis_steps).double(), keep[keep.shape[0] - len(nis_steps) :]),
+    }
+
+
+def _nis_report(nis: torch.Tensor, keep: torch.Tensor, dim: int = 6) -> dict:
+    """Consistency of the innovations, the test that needs no ground truth (so it runs on
+    logged vehicle data): NIS ``y^T S^-1 y`` is chi-square(6) for a consistent filter. Its
+    mean with the 95 % confidence interval over the runs (envs), and the fraction of steps in
+    the per-step 95 % interval."""
+    per_run = (torch.where(keep, nis, torch.zeros_like(nis)).sum(0) / keep.sum(0))[keep.sum(0) > 0]
+    half = 1.96 * float(per_run.std()) / math.sqrt(per_run.numel()) if per_run.numel() > 1 else 0.0
+    low, high = _chi2_quantile(0.025, dim), _chi2_quantile(0.975, dim)
+    values = nis[keep]
+    return {
+        "nis_mean": float(values.mean()),
+        "nis_mean_ci95_over_runs": [float(per_run.mean()) - half, float(per_run.mean()) + half],
+        "nis_fraction_in_step_bounds": float(((values >= low) & (values <= high)).double().mean()),
+        "nis_step_bounds_95": [low, high],
     }

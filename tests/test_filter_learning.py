@@ -329,3 +329,33 @@ def test_filter_ablation_cli_adds_context_rows_started_from_the_constant_fit(tmp
     assert 0 < gap < 0.2
     report = json.loads((tmp_path / "ablation.json").read_text())
     assert "learned, nll, context Q and R" in report["conditions"]["nominal"]["filters"]
+
+
+def test_nis_is_the_normalised_innovation_of_each_prediction(rollouts):
+    from dockingrl.transforms.ekf import (
+        ekf_predict,
+        innovation,
+        innovation_covariance,
+        measurement_jacobian,
+    )
+
+    ekf = make_filter(DockingConfig())
+    nis: list[torch.Tensor] = []
+    with torch.no_grad():
+        means, covs, _, _ = run_filter(ekf, rollouts[:6], nis=nis)
+    assert len(nis) == 5 and nis[0].shape == (16,)
+    data, t = rollouts, 3  # by hand: predict from the estimate after step t - 1, then y, S
+    applied = ekf._applied_action(data["action"][t - 1])
+    Q, R = ekf.noise_covariances(means[t - 1], applied, data["observation"][t], None)
+    prior, prior_cov = ekf_predict(
+        means[t - 1], covs[t - 1], applied, data["ocean_current"][t], Q, 0.2
+    )
+    H = measurement_jacobian(prior, data["ocean_current"][t])
+    S = innovation_covariance(prior_cov, H, torch.diag_embed(R)).double()
+    y = innovation(prior, data["observation"][t], data["ocean_current"][t]).double()
+    expected = y.unsqueeze(-1).transpose(-1, -2) @ torch.linalg.inv(S) @ y.unsqueeze(-1)
+    torch.testing.assert_close(nis[t - 1].double(), expected[..., 0, 0], rtol=1e-4, atol=1e-4)
+    report = evaluate_filter(ekf, rollouts)
+    low, high = report["nis_mean_ci95_over_runs"]
+    assert report["nis_mean"] > 0 and low < report["nis_mean"] < high
+    assert 0 < report["nis_fraction_in_step_bounds"] <= 1
