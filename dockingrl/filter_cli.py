@@ -330,15 +330,15 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     from dockingrl.io import atomic_write, write_json
     from dockingrl.training import train
 
-    fixed = ("scenario", "total_steps", "range_noise_scale", "bearing_noise_scale")
-    fixed += ("filter_params", "out", "run_name", "logger", "seed")
+    fixed = {"scenario", "total_steps", "range_noise_scale", "bearing_noise_scale"}
+    fixed |= {"filter_params", "out", "run_name", "logger", "seed"}
     try:
         extra = parse_overrides("ppo", args.set)
     except ValueError as exc:
         raise SystemExit(f"error: --set {exc}") from exc
-    if set(extra) & set(fixed):
+    if fixed & set(extra):
         raise SystemExit(
-            f"error: --set cannot change {', '.join(sorted(set(extra) & set(fixed)))}: "
+            f"error: --set cannot change {', '.join(sorted(fixed & set(extra)))}: "
             "the comparison sets it (see its own options)"
         )
     rows, results = [], {"command": command_line(), "seeds": list(args.seeds), "agents": {}}

@@ -309,12 +309,6 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
     n, dof = nees.numel(), 5
     low_step, high_step = _chi2_quantile(0.025, dof), _chi2_quantile(0.975, dof)
     runs = keep.sum(-1)
-    # the envs are independent runs, their steps are not: the mean NEES' 95 % confidence
-    # interval from the spread of the per-run means
-    per_run = (torch.where(keep, nees_tn, torch.zeros_like(nees_tn)).sum(0) / keep.sum(0))[
-        keep.sum(0) > 0
-    ]
-    half = 1.96 * float(per_run.std()) / math.sqrt(per_run.numel()) if per_run.numel() > 1 else 0.0
     return {
         "samples": n,
         "rmse_position_m": float(error[:, :2].pow(2).sum(-1).mean().sqrt()),
@@ -326,7 +320,7 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
             _chi2_quantile(0.025, dof * n) / n,
             _chi2_quantile(0.975, dof * n) / n,
         ],
-        "nees_mean_ci95_over_runs": [float(per_run.mean()) - half, float(per_run.mean()) + half],
+        "nees_mean_ci95_over_runs": _ci95_over_runs(nees_tn, keep),
         "nees_fraction_in_step_bounds": float(
             ((nees >= low_step) & (nees <= high_step)).double().mean()
         ),
@@ -340,18 +334,26 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
     }
 
 
+def _ci95_over_runs(values: torch.Tensor, keep: torch.Tensor) -> list[float]:
+    """95 % confidence interval of the mean of ``values`` ``(T, N)`` over the kept entries,
+    from the spread of the per-env means: the envs are independent runs, the steps of one run
+    are not."""
+    counts = keep.sum(0)
+    per_run = (torch.where(keep, values, torch.zeros_like(values)).sum(0) / counts)[counts > 0]
+    half = 1.96 * float(per_run.std()) / math.sqrt(per_run.numel()) if per_run.numel() > 1 else 0.0
+    return [float(per_run.mean()) - half, float(per_run.mean()) + half]
+
+
 def _nis_report(nis: torch.Tensor, keep: torch.Tensor, dim: int = 6) -> dict:
     """Consistency of the innovations, the test that needs no ground truth (so it runs on
     logged vehicle data): NIS ``y^T S^-1 y`` is chi-square(6) for a consistent filter. Its
     mean with the 95 % confidence interval over the runs (envs), and the fraction of steps in
     the per-step 95 % interval."""
-    per_run = (torch.where(keep, nis, torch.zeros_like(nis)).sum(0) / keep.sum(0))[keep.sum(0) > 0]
-    half = 1.96 * float(per_run.std()) / math.sqrt(per_run.numel()) if per_run.numel() > 1 else 0.0
     low, high = _chi2_quantile(0.025, dim), _chi2_quantile(0.975, dim)
     values = nis[keep]
     return {
         "nis_mean": float(values.mean()),
-        "nis_mean_ci95_over_runs": [float(per_run.mean()) - half, float(per_run.mean()) + half],
+        "nis_mean_ci95_over_runs": _ci95_over_runs(nis, keep),
         "nis_fraction_in_step_bounds": float(((values >= low) & (values <= high)).double().mean()),
         "nis_step_bounds_95": [low, high],
     }
