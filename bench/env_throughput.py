@@ -1,6 +1,7 @@
 """Env steps per second of the batched docking env, with random actions.
 
-Usage: ``python bench/env_throughput.py [--sizes 1 64 1024 4096] [--seconds 3] [--threads 2]``
+Usage: ``python bench/env_throughput.py [--sizes 1 64 1024 4096] [--seconds 3] [--threads 2]
+[--device cuda]``
 
 Each step is a full TorchRL ``step_and_maybe_reset`` (what a collector does), random actions
 drawn by ``action_spec.rand()`` included. The ``compound`` row (EKF + compound observation,
@@ -17,33 +18,41 @@ import torch
 from dockingrl.evaluation import describe_machine
 
 
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def steps_per_second(env, seconds: float) -> float:
     td = env.reset()
     for _ in range(10):  # warm-up (and compilation, for compiled pipelines)
         td["action"] = env.action_spec.rand()
         _, td = env.step_and_maybe_reset(td)
+    _sync(env.device)
     steps, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
         for _ in range(10):
             td["action"] = env.action_spec.rand()
             _, td = env.step_and_maybe_reset(td)
         steps += 10
+        _sync(env.device)
     return steps * env.batch_size[0] / (time.perf_counter() - start)
 
 
-def pipelines():
+def pipelines(device: str = "cpu"):
+    from dockingrl import make_env
     from dockingrl.env import DockingEnv
 
-    yield "env (noise)", lambda n: DockingEnv(n, seed=0)
-    try:
-        from dockingrl import make_env
-    except ImportError:
-        return
-    yield "compound (env + EKF + concat)", lambda n: make_env("compound", n, seed=0)
-    yield "env (noise), compile_step=True", lambda n: DockingEnv(n, seed=0, compile_step=True)
+    d = device
+    yield "env (noise)", lambda n: DockingEnv(n, seed=0, device=d)
+    yield "compound (env + EKF + concat)", lambda n: make_env("compound", n, seed=0, device=d)
+    yield (
+        "env (noise), compile_step=True",
+        lambda n: DockingEnv(n, seed=0, device=d, compile_step=True),
+    )
     yield (
         "compound, make_env(compile=True)",
-        lambda n: make_env("compound", n, seed=0, compile=True),
+        lambda n: make_env("compound", n, seed=0, device=d, compile=True),
     )
 
 
@@ -52,11 +61,12 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096])
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", default="cpu", help="torch device of the envs (cpu, cuda)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    print(f"machine: {describe_machine()}")
+    print(f"machine: {describe_machine(args.device)}, envs on {args.device}")
     rows = {}
-    for name, make in pipelines():
+    for name, make in pipelines(args.device):
         rows[name] = [steps_per_second(make(n), args.seconds) for n in args.sizes]
     header = "| pipeline | " + " | ".join(f"n={n}" for n in args.sizes) + " |"
     print(header)

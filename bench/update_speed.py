@@ -1,7 +1,8 @@
 """Gradient updates per second of the TorchRL agents at the paper's sizes, beside a minimal
 plain-PyTorch implementation of the same update, in the same process.
 
-Usage: ``python bench/update_speed.py [--seconds 5] [--rounds 5] [--algos sac td3 ppo]``
+Usage: ``python bench/update_speed.py [--seconds 5] [--rounds 5] [--algos sac td3 ppo]
+[--device cuda]``
 
 TorchRL and plain updates are timed in alternating rounds, so that a drift in the machine's
 speed (frequent on shared CPUs) hits both alike.
@@ -32,6 +33,7 @@ from dockingrl.evaluation import describe_machine
 from dockingrl.scenarios import make_env
 
 OBS, ACT = 12, 2
+DEVICE = torch.device("cpu")  # set by --device
 
 
 def transitions(n: int) -> TensorDict:
@@ -49,31 +51,39 @@ def transitions(n: int) -> TensorDict:
             },
         },
         batch_size=[n],
-    )
+    ).to(DEVICE)
+
+
+def _sync() -> None:
+    if DEVICE.type == "cuda":
+        torch.cuda.synchronize(DEVICE)
 
 
 def rate(step, seconds: float) -> float:
     for _ in range(20):
         step()
+    _sync()
     count, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        step()
-        count += 1
+        for _ in range(10):
+            step()
+        count += 10
+        _sync()
     return count / (time.perf_counter() - start)
 
 
 # -- TorchRL -------------------------------------------------------------------------------
 def torchrl_update(algo: str, compile_update: bool = False):
     env = make_env("compound", 1, seed=0)
-    cfg = make_config(algo, "paper", compile_update=compile_update)
-    agent = make_agent(cfg, OBS, env.action_spec[0], 30.0)
+    cfg = make_config(algo, "paper", compile_update=compile_update, device=str(DEVICE))
+    agent = make_agent(cfg, OBS, env.action_spec[0], 30.0, DEVICE)
     if algo == "ppo":
         data = transitions(64 * 32)
         with torch.no_grad():
             data = agent.actor(data)
             agent.advantage.value_network(data)
-            data["advantage"] = torch.randn(data.shape[0], 1)
-            data["value_target"] = torch.randn(data.shape[0], 1)
+            data["advantage"] = torch.randn(data.shape[0], 1, device=DEVICE)
+            data["value_target"] = torch.randn(data.shape[0], 1, device=DEVICE)
         optim, params = agent.optimizers["all"], list(agent.loss.parameters())
         index = iter(range(10**9))
 
@@ -95,7 +105,7 @@ def mlp(sizes):
     layers = []
     for a, b in zip(sizes[:-1], sizes[1:], strict=True):
         layers += [nn.Linear(a, b), nn.ReLU()]
-    return nn.Sequential(*layers[:-1])
+    return nn.Sequential(*layers[:-1]).to(DEVICE)
 
 
 def plain_sac():
@@ -105,7 +115,7 @@ def plain_sac():
     qa = torch.optim.Adam([*q1.parameters(), *q2.parameters()], lr=3e-4)
     aa = torch.optim.Adam(actor.parameters(), lr=3e-4)
     data = transitions(10_000)
-    low, high = torch.tensor([-0.4, -0.3]), torch.tensor([0.8, 0.3])
+    low, high = torch.tensor([-0.4, -0.3], device=DEVICE), torch.tensor([0.8, 0.3], device=DEVICE)
     alpha, gamma, tau = 0.2, 0.99, 0.005
 
     def sample(obs):
@@ -118,7 +128,7 @@ def plain_sac():
         return low + (t + 1) * (high - low) / 2, logp
 
     def step():
-        b = data[torch.randint(0, 10_000, (256,))]
+        b = data[torch.randint(0, 10_000, (256,), device=DEVICE)]
         o, a, r = b["observation"], b["action"], b["next", "reward"]
         o2, d = b["next", "observation"], b["next", "terminated"].float()
         with torch.no_grad():
@@ -155,7 +165,7 @@ def plain_td3():
     qa = torch.optim.Adam([*q1.parameters(), *q2.parameters()], lr=5e-4)
     aa = torch.optim.Adam(actor.parameters(), lr=5e-4)
     data = transitions(10_000)
-    low, high = torch.tensor([-0.4, -0.3]), torch.tensor([0.8, 0.3])
+    low, high = torch.tensor([-0.4, -0.3], device=DEVICE), torch.tensor([0.8, 0.3], device=DEVICE)
     counter = [0]
 
     def act(net, obs):
@@ -163,11 +173,11 @@ def plain_td3():
 
     def step():
         counter[0] += 1
-        b = data[torch.randint(0, 10_000, (256,))]
+        b = data[torch.randint(0, 10_000, (256,), device=DEVICE)]
         o, a, r = b["observation"], b["action"], b["next", "reward"]
         o2, d = b["next", "observation"], b["next", "terminated"].float()
         with torch.no_grad():
-            noise = (torch.randn(256, ACT) * 0.2).clamp(-0.5, 0.5)
+            noise = (torch.randn(256, ACT, device=DEVICE) * 0.2).clamp(-0.5, 0.5)
             a2 = torch.maximum(torch.minimum(act(ta, o2) + noise, high), low)
             x2 = torch.cat((o2, a2), -1)
             y = r + 0.99 * (1 - d) * torch.min(t1(x2), t2(x2))
@@ -200,6 +210,7 @@ def plain_ppo():
         torch.randn(n, generator=g),
         torch.randn(n, generator=g),
     )
+    obs, raw, old_logp, adv, ret = (x.to(DEVICE) for x in (obs, raw, old_logp, adv, ret))
     index = iter(range(10**9))
 
     def step():
@@ -241,10 +252,13 @@ def main(argv=None) -> None:
     parser.add_argument("--rounds", type=int, default=5, help="alternating rounds per pair")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--algos", nargs="+", default=["sac", "td3", "ppo"])
+    parser.add_argument("--device", default="cpu", help="torch device of networks and data")
     args = parser.parse_args(argv)
+    global DEVICE
+    DEVICE = torch.device(args.device)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
-    print(f"machine: {describe_machine()}")
+    print(f"machine: {describe_machine(DEVICE)}, updates on {DEVICE}")
     print(
         "| algorithm | TorchRL updates/s | TorchRL, compile_update | plain PyTorch updates/s | "
         "plain, torch.compile | TorchRL time / plain time | compiled TorchRL / plain | "

@@ -167,7 +167,8 @@ def summarize(outcomes: dict[str, torch.Tensor], dt: float, speed_limit: float) 
     }
 
 
-def describe_machine() -> str:
+def describe_machine(device: torch.device | str | None = None) -> str:
+    """The CPU, its cores, torch's version and threads, and the GPU when ``device`` is CUDA."""
     import os
 
     cpu = platform.processor() or platform.machine()
@@ -179,7 +180,10 @@ def describe_machine() -> str:
     except OSError:
         pass
     threads = torch.get_num_threads()
-    return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {threads} threads"
+    text = f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {threads} threads"
+    if device is not None and torch.device(device).type == "cuda":
+        text += f", GPU {torch.cuda.get_device_name(device)}"
+    return text
 
 
 def evaluate(
@@ -235,7 +239,7 @@ def evaluate(
         "policy_mode": "stochastic" if stochastic else "deterministic",
         **summarize(outcomes, sim.config.dt, speed_limit),
         "wall_clock_s": time.perf_counter() - start,
-        "machine": describe_machine(),
+        "machine": describe_machine(sim.device),
     }
     if out is not None:
         write_json(out, metrics)

@@ -413,7 +413,7 @@ class Trainer:
             "final_eval_wall_clock_s": time.perf_counter() - start,
             "success_rate": final["success_rate"],
             **chosen,
-            "machine": describe_machine(),
+            "machine": describe_machine(cfg.device),
             "command": self.command,
         }
         write_json(self.run_dir / "summary.json", summary)

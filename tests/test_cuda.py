@@ -1,0 +1,97 @@
+"""The env, the filter and training on a CUDA device (skipped where there is none).
+
+Each test compares with the CPU where the two can be compared: the dynamics without noise,
+one EKF step on the same inputs, the recorded-data filter on the same recordings.
+"""
+
+import pytest
+import torch
+from test_training import tiny_config
+
+from dockingrl import make_env
+from dockingrl.agents.saving import load_policy
+from dockingrl.env import DockingConfig, DockingEnv
+from dockingrl.filter_learning import FilterFit, fit_filter, record_rollouts, run_filter
+from dockingrl.scenarios import make_filter
+from dockingrl.training import train
+
+pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+CUDA = torch.device("cuda")
+
+
+def scripted_actions(steps: int, n: int) -> torch.Tensor:
+    t = torch.arange(steps, dtype=torch.float64)[:, None]
+    k = torch.arange(n, dtype=torch.float64)[None, :]
+    surge = 0.3 + 0.3 * torch.sin(0.05 * t + k)
+    yaw = 0.2 * torch.cos(0.07 * t + 0.5 * k)
+    return torch.stack([surge, yaw], -1)
+
+
+def test_noise_free_dynamics_match_the_cpu():
+    n, steps = 16, 150
+    poses = torch.stack(
+        [torch.linspace(-30, -10, n), torch.linspace(-8, 8, n), torch.linspace(-1, 1, n)], -1
+    )
+    currents = torch.stack([torch.linspace(-0.3, 0.3, n), torch.linspace(0.2, -0.2, n)], -1)
+    actions = scripted_actions(steps, n)
+    traces = {}
+    for key, device in (("cpu", "cpu"), ("cuda", "cuda")):
+        cfg = DockingConfig(noise=False)
+        env = DockingEnv(n, config=cfg, device=device, seed=0, dtype=torch.float64)
+        env.set_initial_state(poses, currents)
+        td = env.reset()
+        rows = []
+        for a in actions:
+            td["action"] = a.to(device)
+            out, td = env.step_and_maybe_reset(td)
+            assert out.device.type == torch.device(device).type
+            rows.append(out["next", "true_state"].cpu())
+        traces[key] = torch.stack(rows)
+    torch.testing.assert_close(traces["cuda"], traces["cpu"], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("scenario", ["no_noise", "noise", "filtered", "compound"])
+def test_every_scenario_steps_thousands_of_envs_on_cuda(scenario):
+    env = make_env(scenario, 4096, seed=0, device="cuda")
+    data = env.rollout(60, break_when_any_done=False)
+    assert data.device == CUDA and data.batch_size == (4096, 60)
+    obs = data["next", "observation"]
+    assert obs.is_cuda and bool(torch.isfinite(obs).all())
+    assert obs.shape[-1] == (12 if scenario == "compound" else 6)
+    assert int(data["next", "step_count"].max()) == 60
+
+
+def test_recorded_data_filter_matches_the_cpu():
+    data = record_rollouts(32, 40, seed=3)
+    ekf = make_filter(DockingConfig())
+    ekf_cuda = make_filter(DockingConfig()).to(CUDA)
+    mean, cov = run_filter(ekf.double(), data.double())[:2]
+    mean_c, cov_c = run_filter(ekf_cuda.double(), data.double().to(CUDA))[:2]
+    assert mean_c.is_cuda
+    torch.testing.assert_close(mean_c.cpu(), mean, rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(cov_c.cpu(), cov, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("objective", ["nll", "supervised"])
+def test_filter_learning_runs_on_cuda(objective):
+    data = record_rollouts(64, 120, seed=1).to(CUDA)
+    ekf = make_filter(DockingConfig()).to(CUDA)
+    fit = FilterFit(objective=objective, window=20, epochs=3, lr=0.05, num_envs=64, steps=120)
+    history = fit_filter(ekf, fit, data=data)
+    assert all(torch.isfinite(torch.tensor(history)))
+    first, last = sum(history[:6]) / 6, sum(history[-6:]) / 6
+    assert last < first
+    assert next(iter(ekf.noise_parameters())).is_cuda
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_training_on_cuda_and_evaluating_the_policy_on_the_cpu(algo, tmp_path):
+    cfg = tiny_config(algo, "compound", tmp_path, device="cuda")
+    result = train(cfg, progress=False)
+    assert result["summary"]["updates"] > 0
+    assert "GPU" in result["summary"]["machine"]
+    policy, info = load_policy(tmp_path / f"{algo}_compound" / "policy.pt", device="cpu")
+    assert info["algo"] == algo
+    assert all(p.device.type == "cpu" for p in policy.parameters())
+    resumed = train(None, resume=tmp_path / f"{algo}_compound", progress=False)
+    assert resumed["summary"]["frames"] == result["summary"]["frames"]
