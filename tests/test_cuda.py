@@ -54,7 +54,7 @@ def test_noise_free_dynamics_match_the_cpu():
 def test_every_scenario_steps_thousands_of_envs_on_cuda(scenario):
     env = make_env(scenario, 4096, seed=0, device="cuda")
     data = env.rollout(60, break_when_any_done=False)
-    assert data.device == CUDA and data.batch_size == (4096, 60)
+    assert data.device.type == "cuda" and data.batch_size == (4096, 60)
     obs = data["next", "observation"]
     assert obs.is_cuda and bool(torch.isfinite(obs).all())
     assert obs.shape[-1] == (12 if scenario == "compound" else 6)
