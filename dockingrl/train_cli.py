@@ -6,9 +6,14 @@ import argparse
 
 from dockingrl.agents.config import CONFIGS, PRESETS, add_config_arguments, config_from_args
 
+#: every config field that has a command-line option
+CONFIG_FIELDS = {f for cls in CONFIGS.values() for f in cls.__dataclass_fields__} - {"algo"}
+
 
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--algo", choices=list(CONFIGS), required=True, help="algorithm")
+    parser.add_argument(
+        "--algo", choices=list(CONFIGS), help="algorithm (required unless --resume)"
+    )
     parser.add_argument(
         "--preset",
         choices=list(PRESETS),
@@ -21,7 +26,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="RUN_DIR",
         help="continue the run in RUN_DIR from its latest checkpoint to the same "
-        "total (its config.json is used)",
+        "total (its config.json is used; only --threads and --device may change)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_config_arguments(parser)
@@ -31,8 +36,29 @@ def cmd_train(args: argparse.Namespace) -> int:
     from dockingrl.cli import command_line
     from dockingrl.training import train
 
-    cfg = None if args.resume else config_from_args(args)
-    result = train(cfg, resume=args.resume, progress=not args.no_progress, command=command_line())
+    if args.resume:
+        given = {
+            name: value
+            for name, value in vars(args).items()
+            if value is not None and name in CONFIG_FIELDS
+        }
+        if args.algo is not None:
+            given["algo"] = args.algo
+        try:
+            result = train(
+                None,
+                resume=args.resume,
+                progress=not args.no_progress,
+                command=command_line(),
+                overrides=given,
+            )
+        except (ValueError, FileNotFoundError) as exc:
+            raise SystemExit(f"error: {exc}") from exc
+    else:
+        if args.algo is None:
+            raise SystemExit("error: --algo is required (unless --resume RUN_DIR)")
+        cfg = config_from_args(args)
+        result = train(cfg, progress=not args.no_progress, command=command_line())
     s, e = result["summary"], result["eval"]
     print(
         f"{s['algo']} {s['scenario']}: {s['frames']} env steps ({s['num_envs']} envs), "

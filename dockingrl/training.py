@@ -457,8 +457,17 @@ def plot_run(run_dir: str | Path) -> Path | None:
     )
 
 
+#: what a resumed run may change: where and how fast it runs, not what it learns
+RESUME_OVERRIDES = ("threads", "device")
+
+
 def train(
-    cfg: TrainConfig, *, resume: str | Path | None = None, progress: bool = True, command: str = ""
+    cfg: TrainConfig | None,
+    *,
+    resume: str | Path | None = None,
+    progress: bool = True,
+    command: str = "",
+    overrides: dict | None = None,
 ) -> dict:
     """Train ``cfg.algo`` on ``cfg.scenario``; returns ``{"summary", "eval", "run_dir"}``.
 
@@ -470,14 +479,29 @@ def train(
     Args:
         resume: a run folder whose latest checkpoint to continue from, to the same
             ``total_steps`` (its ``config.json`` is used; ``cfg`` is ignored).
+        overrides: with ``resume``, new values of :data:`RESUME_OVERRIDES` (threads, device).
     """
     if resume is not None:
         run_dir = Path(resume)
+        if not (run_dir / "config.json").exists():
+            raise FileNotFoundError(f"{run_dir} holds no run (no config.json) to resume")
         saved = json.loads((run_dir / "config.json").read_text())
         cls = CONFIGS[saved["algo"]]
         names = {f.name for f in fields(cls)}
         saved = {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items() if k in names}
-        cfg = cls(**saved)
+        overrides = dict(overrides or {})
+        if overrides.get("algo") == saved["algo"]:
+            del overrides["algo"]
+        changed = sorted(set(overrides) - set(RESUME_OVERRIDES))
+        if changed:
+            raise ValueError(
+                f"a resumed run keeps its config; only {', '.join(RESUME_OVERRIDES)} may change, "
+                f"not {', '.join(changed)}"
+            )
+        cfg = cls(**{**saved, **overrides})
+        cfg.validate()
+    elif overrides:
+        raise ValueError("overrides apply to a resumed run only; set them in cfg")
     else:
         cfg.validate()
         run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
@@ -496,4 +520,4 @@ def train(
     return result
 
 
-__all__ = ["RunLogger", "Trainer", "plot_run", "read_curves", "train"]
+__all__ = ["RESUME_OVERRIDES", "RunLogger", "Trainer", "plot_run", "read_curves", "train"]

@@ -110,7 +110,9 @@ def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
     assert 0 < latest["frames"] < cfg.total_steps
     assert not (run / "policy.pt").exists()
     state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
-    result = train(None, resume=run, progress=False)
+    overrides = {"algo": algo, "threads": 2}  # the same algorithm; another thread count
+    result = train(None, resume=run, progress=False, overrides=overrides)
+    assert torch.get_num_threads() == 2
     assert result["summary"]["frames"] >= cfg.total_steps
     assert result["summary"]["updates"] > state["agent"]["updates"]
     steps = [s for s, _ in read_curves(run)["time/updates"]]
@@ -243,6 +245,19 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
     assert info["config"]["observe_current"] is True
     with pytest.raises(SystemExit):
         cli_main(["train", "--algo", "ppo", "--start-steps", "5"])  # a SAC/TD3 option
+    # a resumed run keeps its config: only where and how fast it runs may change
+    run = str(tmp_path / "cli")
+    for extra, message in (
+        (["--seed", "3"], "not seed"),
+        (["--algo", "sac"], "not algo"),
+        (["--total-steps", "512", "--threads", "1"], "not total_steps"),
+    ):
+        with pytest.raises(SystemExit, match=message):
+            cli_main(["train", "--resume", run, *extra])
+    with pytest.raises(SystemExit, match="no run"):
+        cli_main(["train", "--resume", str(tmp_path / "nothing")])
+    with pytest.raises(SystemExit, match="--algo is required"):
+        cli_main(["train", "--total-steps", "256"])
 
 
 def test_wandb_offline_logging(tmp_path, monkeypatch):
