@@ -52,6 +52,37 @@ def gaussian_nll(residual: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
     return 0.5 * white.pow(2).sum(-1) + torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
 
 
+def innovation_whiteness(
+    white: torch.Tensor, valid: torch.Tensor, lags: int
+) -> torch.Tensor:
+    """Whiteness penalty of whitened innovations: ``sum_k ||C_k||_F^2``, ``k = 1..lags``, with
+    ``C_k`` the mean over envs and steps of ``w_t w_{t-k}^T``.
+
+    For the optimal gain of a correctly modelled filter the innovations are white (uncorrelated
+    in time) whatever the state's trajectory, and ``w_t = L_t^-1 y_t`` (``S_t = L_t L_t^T``) are
+    independent standard normals; a wrong ratio of ``Q`` to ``R`` shows as correlation between
+    steps. This is the property that autocovariance least-squares methods (Odelson, Rajamani and
+    Rawlings, 2006) use to tell ``Q`` from ``R`` with the measurements alone.
+
+    Args:
+        white: ``(T, N, m)`` whitened innovations.
+        valid: ``(T, N)`` True where step ``t`` has an innovation (not an episode's first).
+    """
+    run = torch.zeros_like(valid[0], dtype=torch.int64)
+    runs = []
+    for t in range(valid.shape[0]):  # consecutive steps with an innovation, up to t
+        run = torch.where(valid[t], run + 1, torch.zeros_like(run))
+        runs.append(run)
+    runs = torch.stack(runs)
+    penalty = white.new_zeros(())
+    for k in range(1, lags + 1):
+        keep = (runs[k:] > k).to(white.dtype)  # steps t-k..t of one episode, all with innovations
+        count = keep.sum().clamp_min(1.0)
+        cross = torch.einsum("tn,tni,tnj->ij", keep, white[k:], white[:-k]) / count
+        penalty = penalty + cross.pow(2).sum()
+    return penalty
+
+
 def mismatched_config(scale: float = 2.0, config: DockingConfig | None = None) -> DockingConfig:
     """The env with its USBL range and bearing noise scaled by ``scale`` (the filter keeps
     Table 2's ``R``): the mismatched condition of the ablation."""
@@ -130,6 +161,8 @@ def run_filter(
     objective: str | None = None,
     dt: float = 0.2,
     nis: list | None = None,
+    whiteness: float = 0.0,
+    lags: int = 5,
 ):
     """Run the filter over ``data`` (``(T, N)`` from :func:`record_rollouts`), re-initialising
     each env at the first step of its episodes, differentiably in ``Q`` and ``R``.
@@ -140,6 +173,8 @@ def run_filter(
         objective: if given, also return the mean loss per step and env.
         nis: if a list, the normalised innovation squared ``y^T S^-1 y`` of each step ``(N,)``
             is appended to it (for the first step of an episode: NaN, no prediction).
+        whiteness: with ``objective="nll"``, add this weight times
+            :func:`innovation_whiteness` of the window's innovations over ``lags`` lags.
 
     Returns:
         ``(means, covs, (mean, cov), loss)``: the estimates after each step ``(T, N, 5)``,
@@ -149,7 +184,7 @@ def run_filter(
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
     z, action = data["observation"], data["action"]
     current, fresh = data["ocean_current"], data["step_count"] == 0
-    means, covs, losses = [], [], []
+    means, covs, losses, whites, valids = [], [], [], [], []
     if state is None:
         mean, cov = _initial(ekf, z[0], current[0])
         previous_action, start = action[0], 1
@@ -172,6 +207,11 @@ def run_filter(
         if objective == "nll":
             nll = gaussian_nll(y, S)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
+            if whiteness > 0:
+                L = torch.linalg.cholesky(S)
+                w = torch.linalg.solve_triangular(L, y.unsqueeze(-1), upper=False)[..., 0]
+                whites.append(torch.where(fresh[t].unsqueeze(-1), torch.zeros_like(w), w))
+                valids.append(~fresh[t])
         if nis is not None:
             value = (y.unsqueeze(-2) @ torch.linalg.solve(S, y.unsqueeze(-1)))[..., 0, 0]
             nis.append(torch.where(fresh[t], torch.full_like(value, float("nan")), value))
@@ -193,6 +233,10 @@ def run_filter(
         loss = torch.log(errors.pow(2).sum((0, 1)) / counted).sum()
     else:
         loss = torch.stack(losses).mean() if losses else None
+    if whites:
+        loss = loss + whiteness * innovation_whiteness(
+            torch.stack(whites), torch.stack(valids), lags
+        )
     return torch.stack(means), torch.stack(covs), (mean, cov, previous_action), loss
 
 
@@ -208,6 +252,8 @@ class FilterFit:
     lr: float = 0.03
     behaviour: str = "managed_surge"
     seed: int = 0
+    whiteness: float = 0.0  # nll only: weight of the innovations' whiteness penalty
+    lags: int = 5
 
 
 def fit_filter(
@@ -224,6 +270,10 @@ def fit_filter(
         raise ValueError(f"unknown objective {fit.objective!r}; valid: {', '.join(OBJECTIVES)}")
     if fit.window < 2 or fit.epochs < 1 or fit.num_envs < 1 or fit.steps <= fit.window:
         raise ValueError("need window >= 2, epochs >= 1, num_envs >= 1 and steps > window")
+    if fit.whiteness < 0 or (fit.whiteness > 0 and fit.objective != "nll"):
+        raise ValueError("whiteness is a non-negative weight of the nll objective only")
+    if fit.whiteness > 0 and not 1 <= fit.lags < fit.window:
+        raise ValueError(f"need 1 <= lags < window, got lags={fit.lags}, window={fit.window}")
     if data is None:
         data = record_rollouts(
             fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=fit.seed
@@ -235,7 +285,14 @@ def fit_filter(
         state = None
         for start in range(0, data.shape[0], fit.window):
             window = data[start : start + fit.window]
-            _, _, state, loss = run_filter(ekf, window, state=state, objective=fit.objective)
+            _, _, state, loss = run_filter(
+                ekf,
+                window,
+                state=state,
+                objective=fit.objective,
+                whiteness=fit.whiteness,
+                lags=fit.lags,
+            )
             optim.zero_grad(set_to_none=True)
             loss.backward()
             optim.step()

@@ -359,3 +359,41 @@ def test_nis_is_the_normalised_innovation_of_each_prediction(rollouts):
     low, high = report["nis_mean_ci95_over_runs"]
     assert report["nis_mean"] > 0 and low < report["nis_mean"] < high
     assert 0 < report["nis_fraction_in_step_bounds"] <= 1
+
+
+def test_innovation_whiteness_tells_white_from_correlated_innovations():
+    from dockingrl.filter_learning import innovation_whiteness
+
+    gen = torch.Generator().manual_seed(2)
+    T, N, m = 50, 256, 6
+    white = torch.randn(T, N, m, generator=gen, dtype=torch.float64)
+    valid = torch.ones(T, N, dtype=torch.bool)
+    valid[0] = False  # no innovation at an episode's first step
+    valid[20, :128] = False  # a new episode starts here in half the envs
+    correlated = white.clone()
+    for t in range(1, T):
+        correlated[t] = 0.6 * correlated[t - 1] + 0.8 * white[t]
+    noise_floor = 5 * m * m / (T * N)  # expected sum of squares of 5 lags' sample means
+    assert innovation_whiteness(white, valid, 5) < 2 * noise_floor
+    # lag-k correlation 0.6^k on the diagonal: sum_k m 0.36^k ~ 3.4
+    assert innovation_whiteness(correlated, valid, 5) > 3.0
+    # pairs across an episode start (steps 19 and 21 around the new episode's step 20) do
+    # not count
+    spliced = white.clone()
+    spliced[19, :128] = 5.0
+    spliced[21, :128] = 5.0
+    across = innovation_whiteness(spliced, torch.ones_like(valid), 2)
+    assert innovation_whiteness(spliced, valid, 2) < 2 * noise_floor < across
+
+
+def test_whiteness_is_an_option_of_the_nll_objective_only():
+    ekf = make_filter(DockingConfig())
+    data = record_rollouts(8, 40, seed=0)
+    with pytest.raises(ValueError, match="nll objective only"):
+        fit_filter(ekf, FilterFit(objective="supervised", whiteness=1.0, window=10), data=data)
+    with pytest.raises(ValueError, match="lags"):
+        fit_filter(ekf, FilterFit(whiteness=1.0, window=10, lags=10), data=data)
+    history = fit_filter(
+        ekf, FilterFit(whiteness=10.0, window=10, lags=3, epochs=3, lr=0.05), data=data
+    )
+    assert history[-1] < history[0]
