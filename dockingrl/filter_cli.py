@@ -57,6 +57,16 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         "each starting from the constant fit of its objective",
     )
     parser.add_argument(
+        "--whiteness",
+        type=float,
+        default=d.whiteness,
+        help="nll: weight of a penalty on the whitened innovations' correlation between steps "
+        "(see dockingrl.filter_learning.innovation_whiteness; 0: none)",
+    )
+    parser.add_argument(
+        "--lags", type=int, default=d.lags, help="lags of the whiteness penalty (1..window-1)"
+    )
+    parser.add_argument(
         "--context-epochs",
         type=int,
         default=None,
@@ -95,6 +105,8 @@ def _fit(
         lr=args.lr,
         behaviour=args.behaviour,
         seed=args.seed,
+        whiteness=args.whiteness if objective == "nll" else 0.0,
+        lags=args.lags,
     )
     history = fit_filter(ekf, fit, data=data, log=log)
     return ekf, history
@@ -164,6 +176,8 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
     from dockingrl.scenarios import make_filter
     from dockingrl.transforms.params import save_filter_params
 
+    if args.whiteness:
+        raise SystemExit("error: --whiteness applies to learn-filter, not to the ablation table")
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     start = time.perf_counter()

@@ -52,9 +52,7 @@ def gaussian_nll(residual: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
     return 0.5 * white.pow(2).sum(-1) + torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
 
 
-def innovation_whiteness(
-    white: torch.Tensor, valid: torch.Tensor, lags: int
-) -> torch.Tensor:
+def innovation_whiteness(white: torch.Tensor, valid: torch.Tensor, lags: int) -> torch.Tensor:
     """Whiteness penalty of whitened innovations: ``sum_k ||C_k||_F^2``, ``k = 1..lags``, with
     ``C_k`` the mean over envs and steps of ``w_t w_{t-k}^T``.
 
