@@ -35,14 +35,14 @@ def command_line() -> str:
     return "dockingrl " + " ".join(shlex.quote(a) for a in _ARGV)
 
 
-def footer_text(extra: str = "") -> str:
+def footer_text(extra: str = "", device: str | None = None) -> str:
     from dockingrl.evaluation import describe_machine
 
-    text = f"{command_line()}  |  {describe_machine()}"
+    text = f"{command_line()}  |  {describe_machine(device)}"
     return f"{text}  |  {extra}" if extra else text
 
 
-def load_policy(spec: str, *, use_filter: bool = False):
+def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
     """``managed_surge`` or the path of a policy saved by training. Returns
     ``(policy, name, scenario or None, make_env options the policy was trained with)``."""
     if spec == "managed_surge":
@@ -54,7 +54,7 @@ def load_policy(spec: str, *, use_filter: bool = False):
         raise SystemExit(f"error: --policy {spec!r} is neither 'managed_surge' nor a file")
     from dockingrl.agents.saving import load_policy as load_saved
 
-    policy, meta = load_saved(path)
+    policy, meta = load_saved(path, device=device)
     options = {"observe_current": True} if meta["config"].get("observe_current") else {}
     return policy, meta.get("algo", "agent"), meta.get("scenario"), options
 
@@ -65,10 +65,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from dockingrl.plots import plot_success_map, plot_trajectories
 
     torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options = load_policy(args.policy, use_filter=args.use_filter)
+    policy, name, trained_scenario, options = load_policy(
+        args.policy, use_filter=args.use_filter, device=args.device
+    )
     scenario = args.scenario or trained_scenario or "noise"
     config = DockingConfig(contact_speed_tolerance=args.speed_tolerance)
-    env_kwargs = {"config": config, **options}
+    env_kwargs = {"config": config, "device": args.device, **options}
     if args.filter_params:
         env_kwargs["filter_params"] = args.filter_params
     out = Path(args.out) if args.out else None
@@ -110,13 +112,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 result,
                 out / "success_map.png",
                 title=f"{name}, {scenario}: success (%) per current",
-                footer=footer_text(),
+                footer=footer_text(device=args.device),
             )
     if args.trajectories:
         cases = trajectories(policy, FIGURE_10_CASES, scenario, seed=args.seed, **env_kwargs)
         if out is not None:
             write_json(out / "trajectories.json", {"command": command_line(), "cases": cases})
-            plot_trajectories(cases, out / "trajectories.png", footer=footer_text())
+            plot_trajectories(
+                cases, out / "trajectories.png", footer=footer_text(device=args.device)
+            )
     wall = time.perf_counter() - start
     print(f"wall-clock {wall:.1f} s" + (f"; results in {out}/" if out else ""))
     return 0
@@ -218,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(the 500-episode evaluation only; map and trajectories stay deterministic)",
     )
     ev.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    ev.add_argument("--device", default="cpu", help="torch device of the envs and the policy")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=cmd_eval)
 

@@ -95,3 +95,17 @@ def test_training_on_cuda_and_evaluating_the_policy_on_the_cpu(algo, tmp_path):
     assert all(p.device.type == "cpu" for p in policy.parameters())
     resumed = train(None, resume=tmp_path / f"{algo}_compound", progress=False)
     assert resumed["summary"]["frames"] == result["summary"]["frames"]
+
+
+def test_eval_cli_on_cuda(tmp_path):
+    import json
+
+    from dockingrl.cli import main as cli_main
+
+    args = ["eval", "--policy", "managed_surge", "--scenario", "compound", "--use-filter"]
+    args += ["--episodes", "64", "--map", "--map-trials", "2", "--trajectories", "--quiet"]
+    assert cli_main([*args, "--device", "cuda", "--out", str(tmp_path)]) == 0
+    metrics = json.loads((tmp_path / "eval.json").read_text())
+    assert metrics["episodes"] == 64 and "GPU" in metrics["machine"]
+    for name in ("success_map.json", "success_map.png", "trajectories.json", "trajectories.png"):
+        assert (tmp_path / name).stat().st_size > 0
