@@ -19,3 +19,7 @@ __all__ += ["SCENARIOS", "make_env"]
 from dockingrl.evaluation import evaluate  # noqa: E402
 
 __all__ += ["evaluate"]
+
+from dockingrl.onboard import OnboardPolicy  # noqa: E402
+
+__all__ += ["OnboardPolicy"]

@@ -1,0 +1,81 @@
+"""The onboard policy (raw readings in, commands out) against the training env's pipeline."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from dockingrl import make_env
+from dockingrl.agents.algorithms import build_actor
+from dockingrl.agents.config import make_config
+from dockingrl.env import DockingConfig
+from dockingrl.onboard import OnboardPolicy
+
+SCENARIO_DIMS = {"noise": 6, "filtered": 6, "compound": 12}
+
+
+def random_actor(algo, scenario, observe_current=False, seed=0):
+    torch.manual_seed(seed)
+    env = make_env("noise", 1, seed=0)
+    obs_dim = SCENARIO_DIMS[scenario] + (2 if observe_current else 0)
+    cfg = make_config(algo, "paper", scenario=scenario, hidden=(32, 32))
+    return build_actor(cfg, obs_dim, env.action_spec[0], 30.0).eval()
+
+
+def expected_input(scenario, compound, current, observe_current):
+    """What the training env of ``scenario`` gives the actor, cut from a compound env's
+    observation (raw readings, then the EKF's filtered ones)."""
+    raw, filtered = compound[..., :6], compound[..., 6:]
+    obs = {"noise": raw, "filtered": filtered, "compound": compound}[scenario]
+    return torch.cat((obs, current), -1) if observe_current else obs
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+@pytest.mark.parametrize("scenario", ["noise", "filtered", "compound"])
+def test_onboard_commands_match_the_env_pipeline_across_resets(algo, scenario):
+    observe_current = scenario == "compound"
+    actor = random_actor(algo, scenario, observe_current)
+    onboard = OnboardPolicy(actor, scenario, observe_current=observe_current)
+    # its EKF is the one the onboard policy runs; short episodes, so that envs reset mid-way
+    env = make_env("compound", 16, seed=3, config=DockingConfig(max_steps=70))
+    td = env.reset()
+    resets = 0
+    for _ in range(200):
+        current = td["ocean_current"]
+        command = onboard.act(td["observation"][..., :6], current)
+        obs = expected_input(scenario, td["observation"], current, observe_current)
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            expected = actor(TensorDict({"observation": obs}, batch_size=[16]))["action"]
+        torch.testing.assert_close(command, expected, rtol=1e-5, atol=1e-6)
+        td["action"] = command
+        out, td = env.step_and_maybe_reset(td)
+        done = out["next", "done"].squeeze(-1)
+        resets += int(done.sum())
+        onboard.reset(done)
+    assert resets > 0  # episodes ended and the filter was re-initialised in those envs
+
+
+def test_onboard_policy_from_a_saved_policy_file():
+    policy = OnboardPolicy.from_file("results/ppo_compound_sis_lin/policy.pt")
+    assert policy.scenario == "compound" and policy.uses_filter
+    z = torch.tensor([25.0, 0.2, 0.1, 0.5, 0.0, 0.0])
+    first = policy.act(z, torch.tensor([0.1, -0.1]))
+    assert first.shape == (2,) and bool(torch.isfinite(first).all())
+    policy.act(z, torch.tensor([0.1, -0.1]))  # a second step runs the filter
+    policy.reset()
+    torch.testing.assert_close(policy.act(z, torch.tensor([0.1, -0.1])), first)
+
+
+def test_onboard_policy_refuses_bad_readings():
+    policy = OnboardPolicy(random_actor("sac", "compound"), "compound")
+    with pytest.raises(ValueError, match="6 numbers"):
+        policy.act(torch.zeros(5), torch.zeros(2))
+    with pytest.raises(ValueError, match="finite"):
+        policy.act(torch.tensor([1.0, 0, 0, 0, 0, float("nan")]), torch.zeros(2))
+    policy.act(torch.tensor([20.0, 0, 0, 0, 0, 0]), torch.zeros(2))
+    with pytest.raises(ValueError, match="reset"):
+        policy.act(torch.zeros(3, 6), torch.zeros(3, 2))
+    with pytest.raises(ValueError, match="unknown scenario"):
+        OnboardPolicy(random_actor("sac", "noise"), "noisy")
+    with pytest.raises(ValueError, match="no filter"):
+        OnboardPolicy(random_actor("sac", "noise"), "noise", filter_params="x.pt")
