@@ -126,6 +126,23 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from dockingrl.onboard import OnboardPolicy, export_onboard
+
+    if args.batch < 1:
+        raise SystemExit(f"error: --batch must be >= 1, got {args.batch}")
+    if not Path(args.policy).is_file():
+        raise SystemExit(f"error: --policy {args.policy!r} is not a file")
+    policy = OnboardPolicy.from_file(args.policy, filter_params=args.filter_params)
+    path = export_onboard(policy, args.out, batch=args.batch)
+    print(
+        f"wrote {path}: torch.export.load(path).module()(z, current, mean, cov, command, age) "
+        f"-> (command, mean, cov, age), {args.batch} vehicle(s), scenario {policy.scenario}; "
+        "age -1 starts an approach"
+    )
+    return 0
+
+
 def cmd_filter_figure(args: argparse.Namespace) -> int:
     """One episode of the managed surge controller (on the EKF estimate) in the compound
     scenario: raw, filtered and true rho, psi, alpha (Figure 5)."""
@@ -234,6 +251,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ff.add_argument("--current", type=float, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y"))
     ff.set_defaults(func=cmd_filter_figure)
+
+    ex = sub.add_parser(
+        "export",
+        help="write a trained policy with its filter as a torch.export program for a vehicle",
+    )
+    ex.add_argument("--policy", required=True, help="policy.pt written by training")
+    ex.add_argument("--out", required=True, help="the program's file (.pt2)")
+    ex.add_argument("--batch", type=int, default=1, help="vehicles per call")
+    ex.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
+    ex.set_defaults(func=cmd_export)
 
     from dockingrl.filter_cli import add_filter_commands
     from dockingrl.train_cli import add_training_commands

@@ -12,6 +12,8 @@ of an approach and then predicted with the previous command and updated with eac
 
 from __future__ import annotations
 
+import copy
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -24,6 +26,48 @@ from dockingrl.scenarios import SCENARIOS, make_filter
 from dockingrl.transforms.ekf import measurement_function
 
 OBS_DIM = 6
+
+
+class OnboardStep(nn.Module):
+    """One control step as a pure function of the readings and the filter's state, the form
+    :func:`export_onboard` hands to ``torch.export``:
+
+    ``(z, current, mean, cov, command, age) -> (command, mean, cov, age)``
+
+    with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B, 5)``
+    and ``cov`` ``(B, 5, 5)``, the previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the
+    steps since the approach began; ``age < 0`` marks a new approach (the filter starts from
+    ``z``). Scenarios without a filter pass the state through.
+    """
+
+    def __init__(self, actor: nn.Module, scenario: str, ekf, observe_current: bool) -> None:
+        super().__init__()
+        self.actor, self.scenario, self.ekf = actor, scenario, ekf
+        self.observe_current = observe_current
+
+    def forward(self, z, current, mean, cov, command, age):
+        observation = z
+        if self.ekf is not None:
+            mean, cov, filtered, age = self._filter(z, current, mean, cov, command, age)
+            observation = filtered if self.scenario == "filtered" else torch.cat((z, filtered), -1)
+        if self.observe_current:
+            observation = torch.cat((observation, current), -1)
+        td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            command = self.actor(td)["action"]
+        return command, mean, cov, age
+
+    def _filter(self, z, current, mean, cov, command, age):
+        ekf = self.ekf
+        init_mean, init_cov = ekf._initial_state(z, current)
+        new_mean, new_cov, new_filtered = ekf._filter_step(
+            mean, cov, command, z, current, age.clamp_min(0).squeeze(-1)
+        )
+        fresh = age < 0
+        mean = torch.where(fresh, init_mean, new_mean)
+        cov = torch.where(fresh.unsqueeze(-1), init_cov, new_cov)
+        filtered = torch.where(fresh, measurement_function(init_mean, current), new_filtered)
+        return mean, cov, filtered, torch.where(fresh, torch.zeros_like(age), age + 1)
 
 
 class OnboardPolicy(nn.Module):
@@ -51,13 +95,14 @@ class OnboardPolicy(nn.Module):
         super().__init__()
         if scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
-        self.actor, self.scenario, self.observe_current = actor, scenario, observe_current
+        self.scenario, self.observe_current = scenario, observe_current
         self.uses_filter = scenario in ("filtered", "compound")
         if filter_params is not None and not self.uses_filter:
             raise ValueError(f"scenario {scenario!r} has no filter: filter_params do not apply")
-        self.ekf = make_filter(config or DockingConfig()) if self.uses_filter else None
+        ekf = make_filter(config or DockingConfig()) if self.uses_filter else None
         if filter_params is not None:
-            self.ekf.load_filter_params(filter_params)
+            ekf.load_filter_params(filter_params)
+        self.step = OnboardStep(actor, scenario, ekf, observe_current)
         self._state: tuple[torch.Tensor, ...] | None = None  # mean, cov, command, age
 
     @classmethod
@@ -83,6 +128,17 @@ class OnboardPolicy(nn.Module):
         )
         return policy.to(device)
 
+    def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:
+        """The state before an approach: ``(mean, cov, command, age)`` with ``age = -1``."""
+        like = next(self.step.actor.parameters())
+        zeros = partial(torch.zeros, dtype=like.dtype, device=like.device)
+        return (
+            zeros(batch, 5),
+            torch.eye(5, dtype=like.dtype, device=like.device).expand(batch, 5, 5).clone(),
+            zeros(batch, 2),
+            -torch.ones(batch, 1, dtype=like.dtype, device=like.device),
+        )
+
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Begin a new approach: in every vehicle, or where ``mask`` (``(batch,)`` bool) is
         True. The next :meth:`act` of those initialises the filter from its reading."""
@@ -98,54 +154,45 @@ class OnboardPolicy(nn.Module):
         eq. 2) and the current ``(..., 2)`` (DS frame, m/s); also remembered as the command
         the filter predicts the next step with."""
         z, current = self._check(z, "z", OBS_DIM), self._check(current, "current", 2)
-        observation = z
-        if self.uses_filter:
-            filtered = self._filter(z, current)
-            observation = filtered if self.scenario == "filtered" else torch.cat((z, filtered), -1)
-        if self.observe_current:
-            observation = torch.cat((observation, current), -1)
-        td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            command = self.actor(td)["action"]
-        if self.uses_filter:
-            mean, cov, _, age = self._state
-            self._state = (mean, cov, command, age)
-        return command
-
-    def _filter(self, z: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
-        ekf = self.ekf
-        init_mean, init_cov = ekf._initial_state(z, current)
+        single = z.dim() == 1
+        z, current = z.reshape(-1, OBS_DIM), current.reshape(-1, 2)
         if self._state is None:
-            age = torch.zeros_like(z[..., :1])
-            mean, cov = init_mean, init_cov
-            filtered = measurement_function(mean, current)
-        else:
-            mean, cov, command, age = self._state
-            fresh = age < 0  # reset: initialise from this reading instead
-            new_mean, new_cov, new_filtered = ekf._filter_step(
-                mean, cov, command, z, current, age.clamp_min(0).squeeze(-1)
+            self._state = self.initial_state(z.shape[0])
+        elif self._state[0].shape[0] != z.shape[0]:
+            raise ValueError(
+                f"z has {z.shape[0]} vehicles but the filter runs on "
+                f"{self._state[0].shape[0]}: reset() first"
             )
-            mean = torch.where(fresh, init_mean, new_mean)
-            cov = torch.where(fresh.unsqueeze(-1), init_cov, new_cov)
-            filtered = torch.where(fresh, measurement_function(init_mean, current), new_filtered)
-            age = torch.where(fresh, torch.zeros_like(age), age + 1)
-        self._state = (mean, cov, None, age)
-        return filtered
+        command, *state = self.step(z, current, *self._state)
+        self._state = (state[0], state[1], command, state[2])
+        return command[0] if single else command
 
     def _check(self, value, name: str, size: int) -> torch.Tensor:
-        param = next(self.actor.parameters())
+        param = next(self.step.actor.parameters())
         value = torch.as_tensor(value, dtype=param.dtype, device=param.device)
-        if value.shape[-1:] != (size,):
-            raise ValueError(f"{name} must end in {size} numbers, got shape {tuple(value.shape)}")
+        if value.shape[-1:] != (size,) or value.dim() > 2:
+            raise ValueError(
+                f"{name} must be ({size},) or (vehicles, {size}), got shape {tuple(value.shape)}"
+            )
         if not bool(torch.isfinite(value).all()):
             raise ValueError(f"{name} must be finite, got {value.tolist()}")
-        batch = value.shape[:-1]
-        if self._state is not None and self.uses_filter and self._state[0].shape[:-1] != batch:
-            raise ValueError(
-                f"{name} has batch {tuple(batch)} but the filter runs on "
-                f"{tuple(self._state[0].shape[:-1])} vehicles: reset() first"
-            )
         return value
 
 
-__all__ = ["OnboardPolicy"]
+def export_onboard(policy: OnboardPolicy, path: str | Path, batch: int = 1) -> Path:
+    """Write ``policy``'s :class:`OnboardStep` as a ``torch.export`` program (``.pt2``) for
+    ``batch`` vehicles: ``torch.export.load(path).module()(z, current, mean, cov, command,
+    age)`` runs with torch alone (no dockingrl, TorchRL or tensordict), and AOTInductor can
+    compile it for a C++ control loop. Written atomically."""
+    from dockingrl.io import atomic_write
+
+    z = torch.zeros(batch, OBS_DIM)
+    z[:, 0] = 20.0
+    example = (z, torch.zeros(batch, 2), *policy.initial_state(batch))
+    step = copy.deepcopy(policy.step).eval().requires_grad_(False)
+    with torch.no_grad():
+        program = torch.export.export(step, example)
+    return atomic_write(path, lambda tmp: torch.export.save(program, tmp))
+
+
+__all__ = ["OnboardPolicy", "OnboardStep", "export_onboard"]
