@@ -59,8 +59,8 @@ class OnboardStep(nn.Module):
 
     def _filter(self, z, current, mean, cov, command, age):
         ekf = self.ekf
-        init_mean, init_cov = ekf._initial_state(z, current)
-        new_mean, new_cov, new_filtered = ekf._filter_step(
+        init_mean, init_cov = ekf.initial_estimate(z, current)
+        new_mean, new_cov, new_filtered = ekf.filter_step(
             mean, cov, command, z, current, age.clamp_min(0).squeeze(-1)
         )
         fresh = age < 0

@@ -279,7 +279,7 @@ class EKFTransform(Transform):
             bounds = torch.tensor([list(action_low), list(action_high)], dtype=torch.float32)
         self.register_buffer("action_bounds", bounds)
         if compile:
-            self._filter_step = torch.compile(self._filter_step, dynamic=False)
+            self.filter_step = torch.compile(self.filter_step, dynamic=False)
 
     # -- parameters -----------------------------------------------------------------------
     def set_learnable(self, learnable: bool = True) -> EKFTransform:
@@ -342,9 +342,13 @@ class EKFTransform(Transform):
         low, high = self.action_bounds.to(action)
         return torch.maximum(torch.minimum(action, high), low)
 
-    def _filter_step(self, mean, cov, action, z, current, age):
+    def filter_step(self, mean, cov, action, z, current, age):
         """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
-        compiles, noise models included)."""
+        compiles, noise models included): the previous ``action`` (clipped to the command
+        bounds as the env applies it) predicts, the readings ``z`` update; ``age`` is the
+        number of updates since the estimate was initialised. Returns ``(mean, cov,
+        filtered)``, ``filtered`` the readings the estimate predicts (eq. 2 on it). The
+        transform calls it each step; :class:`dockingrl.OnboardPolicy` too."""
         action = self._applied_action(action).to(z.dtype)
         Q, R = self.noise_covariances(mean, action, z, age)
         return ekf_step(
@@ -361,14 +365,16 @@ class EKFTransform(Transform):
             diagonal=True,
         )
 
-    def _initial_state(self, observation, current):
+    def initial_estimate(self, observation, current):
+        """``(mean, cov)`` from an approach's first readings (the state from the inverse of eq. 26,
+        covariance from ``R`` through that inversion)."""
         mean = state_from_observation(observation, current)
         R = torch.diag_embed(self.measurement_noise(observation[..., 0]))
         return mean, initial_covariance(observation, current, R.to(observation.dtype))
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         age = tensordict.get(self.age_key)
-        mean, cov, filtered = self._filter_step(
+        mean, cov, filtered = self.filter_step(
             tensordict.get(self.mean_key),
             tensordict.get(self.cov_key),
             tensordict.get(self.action_key),
@@ -387,7 +393,7 @@ class EKFTransform(Transform):
     ) -> TensorDictBase:
         z = tensordict_reset.get(self.observation_key)
         current = tensordict_reset.get(self.current_key)
-        mean, cov = self._initial_state(z, current)
+        mean, cov = self.initial_estimate(z, current)
         age = torch.zeros_like(z[..., :1])
         previous_mean = tensordict.get(self.mean_key, None)
         if previous_mean is not None:
