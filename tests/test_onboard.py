@@ -40,10 +40,10 @@ def test_onboard_commands_match_the_env_pipeline_across_resets(algo, scenario):
     actor = random_actor(algo, scenario, observe_current)
     onboard = OnboardPolicy(actor, scenario, observe_current=observe_current)
     # its EKF is the one the onboard policy runs; short episodes, so that envs reset mid-way
-    env = make_env("compound", 16, seed=3, config=DockingConfig(max_steps=70))
+    env = make_env("compound", 16, seed=3, config=DockingConfig(max_steps=45))
     td = env.reset()
     resets = 0
-    for _ in range(200):
+    for _ in range(100):
         current = td["ocean_current"]
         command = onboard.act(td["observation"][..., :6], current)
         obs = expected_input(scenario, td["observation"], current, observe_current)
