@@ -33,23 +33,30 @@ from dockingrl.env.dynamics import wrap_angle
 from dockingrl.transforms.ekf import (
     ekf_predict,
     ekf_update,
-    initial_covariance,
     innovation,
     innovation_covariance,
     measurement_jacobian,
-    state_from_observation,
 )
 from dockingrl.transforms.filtering import EKFTransform
 
 OBJECTIVES = ("nll", "supervised", "mse")
 
 
+def whiten(residual: torch.Tensor, cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(L^-1 r, L)`` with ``C = L L^T`` the Cholesky factor: ``residual`` ``(..., n)``,
+    ``cov`` ``(..., n, n)``. ``|L^-1 r|^2 = r^T C^-1 r``."""
+    L = torch.linalg.cholesky(cov)
+    return torch.linalg.solve_triangular(L, residual.unsqueeze(-1), upper=False).squeeze(-1), L
+
+
+def _nll_of_whitened(white: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
+    return 0.5 * white.pow(2).sum(-1) + torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+
+
 def gaussian_nll(residual: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
     """``0.5 (r^T C^-1 r + log det C)`` per batch entry (the constant dropped), through a
     Cholesky factor: ``residual`` ``(..., n)``, ``cov`` ``(..., n, n)``."""
-    L = torch.linalg.cholesky(cov)
-    white = torch.linalg.solve_triangular(L, residual.unsqueeze(-1), upper=False).squeeze(-1)
-    return 0.5 * white.pow(2).sum(-1) + torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    return _nll_of_whitened(*whiten(residual, cov))
 
 
 def innovation_whiteness(white: torch.Tensor, valid: torch.Tensor, lags: int) -> torch.Tensor:
@@ -137,12 +144,6 @@ def record_rollouts(
     return out.transpose(0, 1).contiguous()  # time first
 
 
-def _initial(ekf: EKFTransform, z: torch.Tensor, current: torch.Tensor):
-    mean = state_from_observation(z, current)
-    R = torch.diag_embed(ekf.measurement_noise(z[..., 0]))
-    return mean, initial_covariance(z, current, R)
-
-
 def state_error(mean: torch.Tensor, true_state: torch.Tensor) -> torch.Tensor:
     """Estimate minus truth, ``(..., 5)``: x, y, wrapped heading, surge, yaw rate."""
     x, y, alpha, u, _, r = true_state.unbind(-1)
@@ -184,7 +185,7 @@ def run_filter(
     current, fresh = data["ocean_current"], data["step_count"] == 0
     means, covs, losses, whites, valids = [], [], [], [], []
     if state is None:
-        mean, cov = _initial(ekf, z[0], current[0])
+        mean, cov = ekf.initial_estimate(z[0], current[0])
         previous_action, start = action[0], 1
         means.append(mean)
         covs.append(cov)
@@ -201,20 +202,18 @@ def run_filter(
         if objective == "nll" or nis is not None:
             H = measurement_jacobian(prior_mean, current[t])
             S = innovation_covariance(prior_cov, H, torch.diag_embed(R))
-            y = innovation(prior_mean, z[t], current[t])
+            w, L = whiten(innovation(prior_mean, z[t], current[t]), S)
         if objective == "nll":
-            nll = gaussian_nll(y, S)
+            nll = _nll_of_whitened(w, L)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
             if whiteness > 0:
-                L = torch.linalg.cholesky(S)
-                w = torch.linalg.solve_triangular(L, y.unsqueeze(-1), upper=False)[..., 0]
                 whites.append(torch.where(fresh[t].unsqueeze(-1), torch.zeros_like(w), w))
                 valids.append(~fresh[t])
         if nis is not None:
-            value = (y.unsqueeze(-2) @ torch.linalg.solve(S, y.unsqueeze(-1)))[..., 0, 0]
+            value = w.pow(2).sum(-1)  # y^T S^-1 y
             nis.append(torch.where(fresh[t], torch.full_like(value, float("nan")), value))
         new_mean, new_cov = ekf_update(prior_mean, prior_cov, z[t], current[t], R, diagonal=True)
-        init_mean, init_cov = _initial(ekf, z[t], current[t])
+        init_mean, init_cov = ekf.initial_estimate(z[t], current[t])
         mean = torch.where(fresh[t].unsqueeze(-1), init_mean, new_mean)
         cov = torch.where(fresh[t].view(-1, 1, 1), init_cov, new_cov)
         if objective == "supervised":

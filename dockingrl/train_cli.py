@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from dockingrl.agents.config import CONFIGS, PRESETS, add_config_arguments, config_from_args
-
-#: every config field that has a command-line option
-CONFIG_FIELDS = {f for cls in CONFIGS.values() for f in cls.__dataclass_fields__} - {"algo"}
+from dockingrl.agents.config import (
+    CONFIG_FIELDS,
+    CONFIGS,
+    PRESETS,
+    add_config_arguments,
+    config_from_args,
+)
 
 
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:

@@ -416,12 +416,15 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                 group.add_argument(flag, dest=f.name, default=None, type=kind, help=doc)
 
 
+#: every config field that has a command-line option (of any algorithm)
+CONFIG_FIELDS = frozenset(f.name for cls in CONFIGS.values() for f in fields(cls)) - {"algo"}
+
+
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     known = {f.name for f in fields(CONFIGS[args.algo])} - {"algo"}
     overrides = {}
     for name, value in vars(args).items():
-        all_fields = {f.name for cls in CONFIGS.values() for f in fields(cls)} - {"algo"}
-        if value is None or name not in all_fields:
+        if value is None or name not in CONFIG_FIELDS:
             continue
         if name not in known:
             raise SystemExit(f"error: --{name.replace('_', '-')} does not apply to {args.algo}")
