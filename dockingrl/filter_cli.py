@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 
 from dockingrl.filter_learning import (
+    LEARN_R,
     OBJECTIVES,
     FilterFit,
     evaluate_filter,
@@ -67,6 +68,21 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         "--lags", type=int, default=d.lags, help="lags of the whiteness penalty (1..window-1)"
     )
     parser.add_argument(
+        "--range-noise-from",
+        choices=["measurement", "estimate"],
+        default="measurement",
+        help="the range that scales the learned filters' range sigma: the measured one "
+        "(Table 2 as the paper uses it) or the estimate's, which does not bias the range "
+        "short (see dockingrl.transforms.EKFTransform; not in the paper)",
+    )
+    parser.add_argument(
+        "--learn-r",
+        choices=list(LEARN_R),
+        default=FilterFit().learn_r,
+        help="which sigmas of R are fitted: all six, the USBL's range and bearing (the "
+        "heading, DVL and IMU keep Table 2's, their data-sheet values) or none",
+    )
+    parser.add_argument(
         "--context-epochs",
         type=int,
         default=None,
@@ -92,7 +108,12 @@ def _fit(
         manoeuvre = args.manoeuvre_noise
     if context is None:
         context = args.context_noise
-    ekf = make_filter(config, manoeuvre_noise=manoeuvre, context_noise=context)
+    ekf = make_filter(
+        config,
+        manoeuvre_noise=manoeuvre,
+        context_noise=context,
+        range_noise_from=args.range_noise_from,
+    )
     if init is not None:
         ekf.process_noise.load_state_dict(init.process_noise.state_dict())
         ekf.measurement_noise.load_state_dict(init.measurement_noise.state_dict())
@@ -107,6 +128,7 @@ def _fit(
         seed=args.seed,
         whiteness=args.whiteness if objective == "nll" else 0.0,
         lags=args.lags,
+        learn_r=args.learn_r,
     )
     history = fit_filter(ekf, fit, data=data, log=log)
     return ekf, history
@@ -170,6 +192,13 @@ ROWS = (
 )
 
 
+_LEARN_R_WORDS = {
+    "all": "all six",
+    "usbl": "range and bearing; heading, DVL and IMU keep Table 2's",
+    "none": "none, Table 2's",
+}
+
+
 def cmd_filter_ablation(args: argparse.Namespace) -> int:
     from dockingrl.cli import command_line
     from dockingrl.io import atomic_write, write_json
@@ -202,6 +231,10 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
             args.num_envs, args.steps, config=config, behaviour=args.behaviour, seed=HELD_OUT_SEED
         )
         filters = {"hand-tuned (Tables 1-2)": make_filter(config)}
+        if args.range_noise_from == "estimate":  # the control: Table 2's R, estimated range
+            filters["hand-tuned, R from the estimated range"] = make_filter(
+                config, range_noise_from="estimate"
+            )
         variants = [(objective, "") for objective in OBJECTIVES]
         for flag, kind in ((args.manoeuvre_noise, "manoeuvre"), (args.context_noise, "context")):
             if flag:
@@ -226,6 +259,8 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
                 condition=condition,
                 manoeuvre_noise=kind == "manoeuvre",
                 context_noise=kind == "context",
+                range_noise_from=args.range_noise_from,
+                learn_r=args.learn_r,
                 command=command_line(),
             )
             label = (
@@ -273,6 +308,8 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
         f"scores about 0.95). NIS: the normalised innovation squared, chi-square(6) for a "
         f"consistent filter, the one test that needs no ground truth. Last column: the mean "
         f"of e_i^2 / P_ii per state component (above 1: overconfident there). "
+        f"Learned filters: the range sigma of R scales with the {args.range_noise_from}'s "
+        f"range; R's sigmas fitted: {args.learn_r} ({_LEARN_R_WORDS[args.learn_r]}). "
         f"Wall-clock {results['wall_clock_s']:.0f} s.",
     ]
     write_json(out / "ablation.json", results)

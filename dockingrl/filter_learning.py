@@ -37,9 +37,13 @@ from dockingrl.transforms.ekf import (
     innovation_covariance,
     measurement_jacobian,
 )
-from dockingrl.transforms.filtering import EKFTransform
+from dockingrl.transforms.filtering import CONTEXT_FEATURES, EKFTransform
 
 OBJECTIVES = ("nll", "supervised", "mse")
+#: Which of ``R``'s six sigmas a fit learns; the others keep their values (Table 2 unless
+#: loaded): ``usbl`` learns the range and bearing sigmas only, the sensor whose noise depends on
+#: the acoustic conditions, and keeps the heading, DVL and IMU sigmas of their data sheets.
+LEARN_R = {"all": (0, 1, 2, 3, 4, 5), "usbl": (0, 1), "none": ()}
 
 
 def whiten(residual: torch.Tensor, cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -251,6 +255,7 @@ class FilterFit:
     seed: int = 0
     whiteness: float = 0.0  # nll only: weight of the innovations' whiteness penalty
     lags: int = 5
+    learn_r: str = "all"  # which of R's sigmas are fitted (LEARN_R)
 
 
 def fit_filter(
@@ -269,6 +274,8 @@ def fit_filter(
         raise ValueError("need window >= 2, epochs >= 1, num_envs >= 1 and steps > window")
     if fit.whiteness < 0 or (fit.whiteness > 0 and fit.objective != "nll"):
         raise ValueError("whiteness is a non-negative weight of the nll objective only")
+    if fit.learn_r not in LEARN_R:
+        raise ValueError(f"unknown learn_r {fit.learn_r!r}; valid: {', '.join(LEARN_R)}")
     if fit.whiteness > 0 and not 1 <= fit.lags < fit.window:
         raise ValueError(f"need 1 <= lags < window, got lags={fit.lags}, window={fit.window}")
     if data is None:
@@ -277,6 +284,8 @@ def fit_filter(
         )
     ekf.set_learnable(True)
     optim = torch.optim.Adam(ekf.noise_parameters(), lr=fit.lr)
+    frozen = torch.ones(6, dtype=torch.bool)
+    frozen[list(LEARN_R[fit.learn_r])] = False
     history = []
     for epoch in range(fit.epochs):
         state = None
@@ -292,6 +301,7 @@ def fit_filter(
             )
             optim.zero_grad(set_to_none=True)
             loss.backward()
+            _freeze_measurement_noise(ekf, frozen)
             optim.step()
             state = tuple(x.detach() for x in state)
             history.append(float(loss.detach()))
@@ -299,6 +309,19 @@ def fit_filter(
                 log({f"losses/{fit.objective}": history[-1], "train/epoch": epoch}, len(history))
     ekf.set_learnable(False)
     return history
+
+
+def _freeze_measurement_noise(ekf: EKFTransform, frozen: torch.Tensor) -> None:
+    """Zero the gradients of ``R``'s ``frozen`` entries (its sigma and, with a context model,
+    its context weights): Adam then leaves them where they are."""
+    if not bool(frozen.any()):
+        return
+    grads = [(ekf.measurement_noise.log_std.grad, frozen)]
+    if ekf.noise_context is not None:
+        grads.append((ekf.noise_context.r_weight.grad, frozen.expand(len(CONTEXT_FEATURES), -1)))
+    for grad, mask in grads:
+        if grad is not None:
+            grad[mask.to(grad.device)] = 0.0
 
 
 def _chi2_quantile(p: float, dof: float) -> float:

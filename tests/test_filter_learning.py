@@ -313,9 +313,12 @@ def test_context_noise_is_fitted_saved_loaded_and_agrees_with_the_env_transform(
 def test_filter_ablation_cli_adds_context_rows_started_from_the_constant_fit(tmp_path):
     args = ["filter-ablation", "--num-envs", "6", "--steps", "60", "--window", "20"]
     args += ["--epochs", "1", "--context-epochs", "1", "--threads", "1", "--context-noise"]
+    args += ["--range-noise-from", "estimate", "--learn-r", "usbl"]
     assert cli_main([*args, "--out", str(tmp_path)]) == 0
     table = (tmp_path / "table.md").read_text()
     assert table.count("| learned, supervised, context Q and R |") == 2  # both conditions
+    assert table.count("| hand-tuned, R from the estimated range |") == 2
+    assert "range and bearing; heading, DVL and IMU keep Table 2's" in table
     assert "its 95 % CI over the runs" in table
     ctx = make_filter(DockingConfig()).load_filter_params(
         tmp_path / "mismatched_supervised_context.pt"
@@ -324,8 +327,11 @@ def test_filter_ablation_cli_adds_context_rows_started_from_the_constant_fit(tmp
         tmp_path / "mismatched_supervised.pt"
     )
     assert ctx.context_noise and not constant.context_noise
+    assert ctx.range_noise_from == constant.range_noise_from == "estimate"
+    table2 = make_filter(DockingConfig()).measurement_noise.log_std
+    torch.testing.assert_close(ctx.measurement_noise.log_std[2:], table2[2:], rtol=0, atol=0)
     # one more pass from the constant fit: close to it, not equal
-    gap = (ctx.measurement_noise.log_std - constant.measurement_noise.log_std).abs().max()
+    gap = (ctx.measurement_noise.log_std - constant.measurement_noise.log_std)[:2].abs().max()
     assert 0 < gap < 0.2
     report = json.loads((tmp_path / "ablation.json").read_text())
     assert "learned, nll, context Q and R" in report["conditions"]["nominal"]["filters"]
@@ -397,3 +403,62 @@ def test_whiteness_is_an_option_of_the_nll_objective_only():
         ekf, FilterFit(whiteness=10.0, window=10, lags=3, epochs=3, lr=0.05), data=data
     )
     assert history[-1] < history[0]
+
+
+def test_range_sigma_from_the_estimate_does_not_depend_on_the_reading():
+    mean = torch.tensor([[-12.0, 5.0, 0.3, 0.5, 0.0]]).expand(3, 5)
+    action, age = torch.zeros(3, 2), torch.zeros(3)
+    z = torch.zeros(3, 6)
+    z[:, 0] = torch.tensor([10.0, 13.0, 16.0])  # three range readings of the same estimate
+    _, measured = make_filter(DockingConfig()).noise_covariances(mean, action, z, age)
+    torch.testing.assert_close(measured[:, 0], (0.025 * z[:, 0]) ** 2, rtol=1e-5, atol=0)
+    ekf = make_filter(DockingConfig(), range_noise_from="estimate")
+    _, estimated = ekf.noise_covariances(mean, action, z, age)
+    torch.testing.assert_close(estimated[:, 0], torch.full((3,), (0.025 * 13.0) ** 2))
+    torch.testing.assert_close(estimated[:, 1:], measured[:, 1:])
+    with pytest.raises(ValueError, match="range_noise_from"):
+        EKFTransform(range_noise_from="truth")
+
+
+def test_range_sigma_from_the_measurement_biases_the_range_short_and_the_estimate_does_not():
+    # range noise x4 (10 % of the range): the measured-range R weighs short readings more, a
+    # bias of about -2 sigma_rel^2 = -2 % of the range; the estimate's range removes it
+    config = mismatched_config(4.0)
+    data = record_rollouts(16, 120, config=config, seed=0)
+    truth = data["true_state"][..., :2].norm(dim=-1)
+    keep = data["step_count"] >= 10
+    bias = {}
+    for mode in ("measurement", "estimate"):
+        with torch.no_grad():
+            means = run_filter(make_filter(config, range_noise_from=mode), data)[0]
+        bias[mode] = float(((means[..., :2].norm(dim=-1) - truth) / truth)[keep].mean())
+    assert bias["measurement"] < -0.01
+    assert abs(bias["estimate"]) < 0.008
+
+
+@pytest.mark.parametrize("context", [False, True])
+def test_learn_r_usbl_fits_range_and_bearing_and_keeps_the_other_sigmas(context, rollouts):
+    ekf = make_filter(DockingConfig(), context_noise=context, range_noise_from="estimate")
+    before = ekf.measurement_noise.log_std.detach().clone()
+    fit = FilterFit(window=20, epochs=2, lr=0.05, learn_r="usbl")
+    fit_filter(ekf, fit, data=rollouts[:60].clone())
+    after = ekf.measurement_noise.log_std.detach()
+    assert torch.equal(after[2:], before[2:])
+    assert (after[:2] != before[:2]).all()
+    if context:
+        weights = ekf.noise_context.r_weight.detach()
+        assert (weights[:, 2:] == 0).all() and (weights[:, :2] != 0).any()
+    with pytest.raises(ValueError, match="learn_r"):
+        fit_filter(ekf, FilterFit(window=20, learn_r="dvl"), data=rollouts[:60].clone())
+
+
+def test_range_noise_from_round_trips_and_older_files_read_as_measured(tmp_path):
+    path = tmp_path / "params.pt"
+    make_filter(DockingConfig(), range_noise_from="estimate").save_filter_params(path)
+    assert make_filter(DockingConfig()).load_filter_params(path).range_noise_from == "estimate"
+    payload = torch.load(path, weights_only=True)
+    payload["format"] = "dockingrl.filter_params/3"
+    del payload["range_noise_from"]
+    torch.save(payload, path)
+    ekf = make_filter(DockingConfig(), range_noise_from="estimate").load_filter_params(path)
+    assert ekf.range_noise_from == "measurement"

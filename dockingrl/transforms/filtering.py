@@ -107,7 +107,8 @@ class ProcessNoise(nn.Module):
 
 class MeasurementNoise(nn.Module):
     """Learnable diagonal measurement-noise model (eq. 31): log-sigmas of Table 2, the range
-    sigma being relative to the measured range. ``forward(rho)`` returns the ``(..., 6)``
+    sigma being relative to the range ``rho`` (the measured one in the paper; see
+    :class:`EKFTransform`'s ``range_noise_from``). ``forward(rho)`` returns the ``(..., 6)``
     variances (a diagonal ``R``), strictly positive by construction."""
 
     def __init__(self, std: Sequence[float] = MEASUREMENT_NOISE_STD, eps: float = 1e-12) -> None:
@@ -128,6 +129,9 @@ class MeasurementNoise(nn.Module):
         return sigma**2 + self.eps
 
 
+#: What may scale the range sigma of ``R`` (:class:`EKFTransform`'s ``range_noise_from``).
+RANGE_NOISE_FROM = ("measurement", "estimate")
+
 #: Inputs of :class:`NoiseContext`, each scaled to about unit range: the velocity gaps of the
 #: manoeuvre (applied command minus the estimate), the estimated yaw rate and surge, the
 #: measured range and the filter's age (steps since its first fix).
@@ -136,7 +140,7 @@ CONTEXT_FEATURES = (
     "yaw_gap",  # |w_d - w| / 0.2 rad/s
     "yaw_rate",  # |w| / 0.2 rad/s
     "surge",  # |nu| / 0.5 m/s
-    "log_range",  # log(max(rho_measured, 0.5 m) / 10 m)
+    "log_range",  # log(max(rho, 0.5 m) / 10 m), rho the range that scales R
     "fresh",  # exp(-k / 100), k the filter's steps since its first fix
     "age",  # min(k, 600) / 300
 )
@@ -223,6 +227,14 @@ class EKFTransform(Transform):
             age (:class:`NoiseContext`, not in the paper); a loaded parameter file sets this
             to what it was fitted with. The age (steps since the filter's first fix) is kept
             as state ``ekf_age`` either way.
+        range_noise_from: which range scales the USBL range sigma of ``R``: ``"measurement"``
+            (Sec. 3.5 and Table 2 as specified: the measured range) or ``"estimate"`` (the
+            range of the estimate the step starts from, not in the paper). The range noise is a
+            fraction of the true range, so a measurement that came out short also gets a small
+            sigma and weighs more; the measured-range filter's range estimate is then biased
+            short by about ``2 sigma_rel^2`` of the range (0.5 % with the x2 mismatch's 5 %
+            sigma). A sigma from the estimate does not depend on the reading it weighs; a
+            loaded parameter file sets this to what it was fitted with.
         action_low, action_high: bounds the env clips the action to; the filter predicts with
             the clipped action that was really applied (``None``: as given).
         observation_key, action_key, current_key, out_key: tensordict keys.
@@ -248,6 +260,7 @@ class EKFTransform(Transform):
         learnable: bool = False,
         manoeuvre_noise: bool = False,
         context_noise: bool = False,
+        range_noise_from: str = "measurement",
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
         observation_key: str = "observation",
@@ -271,6 +284,7 @@ class EKFTransform(Transform):
         self.measurement_noise = MeasurementNoise(measurement_noise_std)
         self.noise_context: NoiseContext | None = None
         self.set_context_noise(context_noise)
+        self.range_noise_from = range_noise_from
         self.set_learnable(learnable)
         bounds = None
         if (action_low is None) != (action_high is None):
@@ -307,16 +321,35 @@ class EKFTransform(Transform):
             self.noise_context = None
         return self
 
+    @property
+    def range_noise_from(self) -> str:
+        """``"measurement"`` or ``"estimate"``: the range that scales the range sigma of ``R``
+        (see the class docstring)."""
+        return self._range_noise_from
+
+    @range_noise_from.setter
+    def range_noise_from(self, value: str) -> None:
+        if value not in RANGE_NOISE_FROM:
+            raise ValueError(
+                f"range_noise_from must be one of {', '.join(RANGE_NOISE_FROM)}, got {value!r}"
+            )
+        self._range_noise_from = value
+
     def noise_covariances(
         self, mean: torch.Tensor, action: torch.Tensor, z: torch.Tensor, age: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``Q`` ``(5, 5)`` or ``(..., 5, 5)`` and the diagonal of ``R`` ``(..., 6)`` for a
         step from the prior ``mean`` under the applied ``action`` to the measurement ``z``,
-        the filter being ``age`` steps old (the age matters to a context model only)."""
+        the filter being ``age`` steps old (the age matters to a context model only). The
+        range that scales ``R`` is ``z``'s or ``mean``'s (:attr:`range_noise_from`)."""
         Q = self.process_noise(mean, action).to(z.dtype)
-        R = self.measurement_noise(z[..., 0])
+        if self.range_noise_from == "estimate":
+            rho = torch.linalg.vector_norm(mean[..., :2], dim=-1).to(z.dtype)
+        else:
+            rho = z[..., 0]
+        R = self.measurement_noise(rho)
         if self.noise_context is not None:
-            q_log, r_log = self.noise_context(mean, action, z[..., 0], age)
+            q_log, r_log = self.noise_context(mean, action, rho, age)
             half = torch.exp(0.5 * q_log)
             Q = Q * half.unsqueeze(-1) * half.unsqueeze(-2)
             R = R * torch.exp(r_log)

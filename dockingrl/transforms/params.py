@@ -8,11 +8,14 @@ import torch
 
 from dockingrl.io import atomic_write
 
-FORMAT = "dockingrl.filter_params/3"
+FORMAT = "dockingrl.filter_params/4"
 #: version 1 stored ``Q``'s Cholesky factor with absolute off-diagonal entries
 FORMAT_V1 = "dockingrl.filter_params/1"
 #: version 2 had no context model (``noise_context``)
 FORMAT_V2 = "dockingrl.filter_params/2"
+#: version 3 had no ``range_noise_from`` (always the measured range)
+FORMAT_V3 = "dockingrl.filter_params/3"
+READABLE = (FORMAT, FORMAT_V3, FORMAT_V2, FORMAT_V1)
 
 
 def save_filter_params(transform, path: str | Path, **metadata) -> Path:
@@ -32,6 +35,7 @@ def save_filter_params(transform, path: str | Path, **metadata) -> Path:
             "noise_context": None
             if transform.noise_context is None
             else {k: v.detach().cpu() for k, v in transform.noise_context.state_dict().items()},
+            "range_noise_from": transform.range_noise_from,
             "metadata": metadata,
         }
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
@@ -47,7 +51,7 @@ def load_filter_params(transform, path: str | Path) -> dict:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a foreign or damaged file fails to unpickle in many ways
         raise ValueError(f"{path} is not a dockingrl filter-parameter file: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") not in (FORMAT, FORMAT_V2, FORMAT_V1):
+    if not isinstance(payload, dict) or payload.get("format") not in READABLE:
         raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
     process = dict(payload["process_noise"])
     transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in process)
@@ -57,6 +61,7 @@ def load_filter_params(transform, path: str | Path) -> dict:
         process["off_diag"] = process["off_diag"] / process["log_diag"].exp()[rows]
     transform.process_noise.load_state_dict(process)
     transform.measurement_noise.load_state_dict(payload["measurement_noise"])
+    transform.range_noise_from = payload.get("range_noise_from", "measurement")
     context = payload.get("noise_context")
     transform.set_context_noise(context is not None)
     if context is not None:
