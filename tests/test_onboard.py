@@ -58,6 +58,27 @@ def test_onboard_commands_match_the_env_pipeline_across_resets(algo, scenario):
     assert resets > 0  # episodes ended and the filter was re-initialised in those envs
 
 
+def test_onboard_policy_loads_learned_filter_params_with_their_range_sigma(tmp_path):
+    from dockingrl.scenarios import make_filter
+
+    ekf = make_filter(DockingConfig(), range_noise_from="estimate")
+    with torch.no_grad():
+        ekf.measurement_noise.log_std[:2] += 0.7  # a learned USBL
+    ekf.save_filter_params(tmp_path / "q_r.pt")
+    actor = random_actor("sac", "filtered")
+    onboard = OnboardPolicy(actor, "filtered", filter_params=tmp_path / "q_r.pt")
+    assert onboard.step.ekf.range_noise_from == "estimate"
+    env = make_env("compound", 8, seed=4, filter_params=tmp_path / "q_r.pt")
+    td = env.reset()
+    for _ in range(20):
+        command = onboard.act(td["observation"][..., :6], td["ocean_current"])
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            obs = TensorDict({"observation": td["observation"][..., 6:]}, batch_size=[8])
+            torch.testing.assert_close(command, actor(obs)["action"], rtol=1e-5, atol=1e-6)
+        td["action"] = command
+        td = env.step_and_maybe_reset(td)[1]
+
+
 def test_onboard_policy_from_a_saved_policy_file():
     policy = OnboardPolicy.from_file("results/ppo_compound_sis_lin/policy.pt")
     assert policy.scenario == "compound" and policy.uses_filter
