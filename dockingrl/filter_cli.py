@@ -18,6 +18,7 @@ from dockingrl.filter_learning import (
     mismatched_config,
     record_rollouts,
 )
+from dockingrl.transforms.filtering import RANGE_NOISE_FROM
 
 HELD_OUT_SEED = 1_000
 
@@ -69,8 +70,8 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--range-noise-from",
-        choices=["measurement", "estimate"],
-        default="measurement",
+        choices=list(RANGE_NOISE_FROM),
+        default=RANGE_NOISE_FROM[0],
         help="the range that scales the learned filters' range sigma: the measured one "
         "(Table 2 as the paper uses it) or the estimate's, which does not bias the range "
         "short (see dockingrl.transforms.EKFTransform; not in the paper)",
