@@ -155,7 +155,14 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
     params = out / "filter_params.pt"
     from dockingrl.transforms.params import save_filter_params
 
-    save_filter_params(ekf, params, objective=args.objective, command=command_line())
+    save_filter_params(
+        ekf,
+        params,
+        objective=args.objective,
+        range_noise_from=args.range_noise_from,
+        learn_r=args.learn_r,
+        command=command_line(),
+    )
     held_out = record_rollouts(
         args.num_envs, args.steps, config=config, behaviour=args.behaviour, seed=HELD_OUT_SEED
     )
@@ -163,6 +170,8 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
         "command": command_line(),
         "objective": args.objective,
         "noise_scale": args.noise_scale,
+        "range_noise_from": args.range_noise_from,
+        "learn_r": args.learn_r,
         "loss_first_last": [history[0], history[-1]],
         "wall_clock_s": time.perf_counter() - start,
         "held_out_hand_tuned": evaluate_filter(make_filter(config), held_out),
@@ -211,7 +220,12 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     start = time.perf_counter()
-    results = {"command": command_line(), "conditions": {}}
+    results = {
+        "command": command_line(),
+        "range_noise_from": args.range_noise_from,
+        "learn_r": args.learn_r,
+        "conditions": {},
+    }
     lines = [
         f"Command: `{command_line()}`",
         "",

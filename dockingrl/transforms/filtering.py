@@ -134,7 +134,8 @@ RANGE_NOISE_FROM = ("measurement", "estimate")
 
 #: Inputs of :class:`NoiseContext`, each scaled to about unit range: the velocity gaps of the
 #: manoeuvre (applied command minus the estimate), the estimated yaw rate and surge, the
-#: measured range and the filter's age (steps since its first fix).
+#: range that scales ``R`` (measured or estimated, see ``range_noise_from``) and the filter's
+#: age (steps since its first fix).
 CONTEXT_FEATURES = (
     "surge_gap",  # |v_d - nu| / 0.5 m/s
     "yaw_gap",  # |w_d - w| / 0.2 rad/s
@@ -175,7 +176,8 @@ class NoiseContext(nn.Module):
         mean: torch.Tensor, action: torch.Tensor, measured_range: torch.Tensor, age: torch.Tensor
     ) -> torch.Tensor:
         """``(..., 7)`` features from the prior ``mean`` ``(..., 5)``, the applied ``action``
-        ``(..., 2)``, the measured range ``(...)`` and the filter's ``age`` in steps ``(...)``."""
+        ``(..., 2)``, the range that scales ``R`` ``(...)`` (the measured one unless
+        ``range_noise_from="estimate"``) and the filter's ``age`` in steps ``(...)``."""
         age = age.to(mean.dtype)
         return torch.stack(
             (
@@ -218,7 +220,8 @@ class EKFTransform(Transform):
         dt: filter step (s); the env's step.
         k_v, k_w: rates of the first-order velocity model of eq. 24 (1/s).
         process_noise_std: Table 1 sigmas of ``[x, y, alpha, nu, w]``.
-        measurement_noise_std: Table 2 sigmas, the first relative to the measured range.
+        measurement_noise_std: Table 2 sigmas, the first relative to the range (measured or
+            estimated, ``range_noise_from``).
         learnable: whether ``Q`` and ``R`` require grad.
         manoeuvre_noise: let ``Q`` grow with the gap between commanded and estimated
             velocity (:class:`ProcessNoise`, not in the paper); a loaded parameter file sets
