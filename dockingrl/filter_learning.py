@@ -31,6 +31,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from dockingrl.env import DockingConfig, DockingEnv
 from dockingrl.env.dynamics import wrap_angle
 from dockingrl.transforms.ekf import (
+    MEASUREMENT_DIM,
     ekf_predict,
     ekf_update,
     innovation,
@@ -43,7 +44,7 @@ OBJECTIVES = ("nll", "supervised", "mse")
 #: Which of ``R``'s six sigmas a fit learns; the others keep their values (Table 2 unless
 #: loaded): ``usbl`` learns the range and bearing sigmas only, the sensor whose noise depends on
 #: the acoustic conditions, and keeps the heading, DVL and IMU sigmas of their data sheets.
-LEARN_R = {"all": (0, 1, 2, 3, 4, 5), "usbl": (0, 1), "none": ()}
+LEARN_R = {"all": tuple(range(MEASUREMENT_DIM)), "usbl": (0, 1), "none": ()}
 
 
 def whiten(residual: torch.Tensor, cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -284,7 +285,7 @@ def fit_filter(
         )
     ekf.set_learnable(True)
     optim = torch.optim.Adam(ekf.noise_parameters(), lr=fit.lr)
-    frozen = torch.ones(6, dtype=torch.bool)
+    frozen = torch.ones(MEASUREMENT_DIM, dtype=torch.bool)
     frozen[list(LEARN_R[fit.learn_r])] = False
     history = []
     for epoch in range(fit.epochs):

@@ -22,7 +22,7 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dockingrl.env import DockingConfig
-from dockingrl.scenarios import SCENARIOS, make_filter
+from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS, make_filter
 from dockingrl.transforms.ekf import measurement_function
 
 OBS_DIM = 6
@@ -49,7 +49,9 @@ class OnboardStep(nn.Module):
         observation = z
         if self.ekf is not None:
             mean, cov, filtered, age = self._filter(z, current, mean, cov, command, age)
-            observation = filtered if self.scenario == "filtered" else torch.cat((z, filtered), -1)
+            parts = {"observation": z, "filtered_observation": filtered}
+            keys = FILTERED_OBSERVATION_KEYS[self.scenario]
+            observation = torch.cat([parts[key] for key in keys], -1)
         if self.observe_current:
             observation = torch.cat((observation, current), -1)
         td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
@@ -96,7 +98,7 @@ class OnboardPolicy(nn.Module):
         if scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
         self.scenario, self.observe_current = scenario, observe_current
-        self.uses_filter = scenario in ("filtered", "compound")
+        self.uses_filter = scenario in FILTERED_OBSERVATION_KEYS
         if filter_params is not None and not self.uses_filter:
             raise ValueError(f"scenario {scenario!r} has no filter: filter_params do not apply")
         ekf = make_filter(config or DockingConfig()) if self.uses_filter else None

@@ -18,6 +18,12 @@ SCENARIOS = {
     "filtered": "h(EKF estimate) of the noisy observation (6)",
     "compound": "[noisy, h(EKF estimate)], raw first (12)",
 }
+#: the scenarios that run the EKF, and the keys their ``observation`` concatenates, in order
+#: (``observation``: the raw reading; ``filtered_observation``: ``h`` of the estimate)
+FILTERED_OBSERVATION_KEYS = {
+    "filtered": ("filtered_observation",),
+    "compound": ("observation", "filtered_observation"),
+}
 
 
 def make_filter(config: DockingConfig, **ekf_kwargs) -> EKFTransform:
@@ -71,16 +77,11 @@ def make_env(
     config = (config or DockingConfig()).replace(noise=scenario != "no_noise")
     base = DockingEnv(num_envs, config=config, device=device, seed=seed, compile_step=compile)
     stages: list[Transform] = []
-    if scenario in ("filtered", "compound"):
+    if scenario in FILTERED_OBSERVATION_KEYS:
         ekf = make_filter(config, **{"compile": compile, **(ekf_kwargs or {})})
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
-        keys = (
-            ["filtered_observation"]
-            if scenario == "filtered"
-            else ["observation", "filtered_observation"]
-        )
-        stages += [ekf, CompoundObservation(keys)]
+        stages += [ekf, CompoundObservation(list(FILTERED_OBSERVATION_KEYS[scenario]))]
     elif filter_params is not None or ekf_kwargs:
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
     if observe_current:

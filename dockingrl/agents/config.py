@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, get_type_hints
 
-from dockingrl.scenarios import SCENARIOS
+from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
 
 LOGGERS = ("wandb", "csv", "none")
 LR_SCHEDULES = ("constant", "linear")
@@ -133,7 +133,7 @@ class TrainConfig:
         for name in ("range_noise_scale", "bearing_noise_scale", "contact_speed_target"):
             if not getattr(self, name) > 0:
                 fail(name, "must be > 0")
-        if self.filter_params and self.scenario not in ("filtered", "compound"):
+        if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
             fail("filter_params", f"scenario {self.scenario!r} has no filter")
         if not self.hidden or any(h < 1 for h in self.hidden):
             fail("hidden", "needs positive layer sizes")
