@@ -180,3 +180,52 @@ def test_off_policy_agents_train_with_n_step_targets(algo, tmp_path):
     assert result["summary"]["frames"] == 400
     assert result["summary"]["updates"] == 150
     assert 0.0 <= result["eval"]["success_rate"] <= 100.0
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_critic_layer_norm_normalises_each_hidden_layer_and_trains(algo):
+    env = make_env("no_noise", 4, seed=0)
+    spec = env.action_spec[0]
+    plain = make_agent(make_config(algo, "paper", hidden=(32, 16)), 6, spec, 30.0)
+    normed = make_agent(
+        make_config(
+            algo,
+            "paper",
+            hidden=(32, 16),
+            critic_layer_norm=True,
+            batch_size=16,
+            buffer_size=1000,
+        ),
+        6,
+        spec,
+        30.0,
+    )
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in plain.loss.modules())
+    critic = normed.loss.qvalue_network.module
+    norms = [m for m in critic.modules() if isinstance(m, torch.nn.LayerNorm)]
+    assert [n.normalized_shape for n in norms] == [(32,), (16,)]
+    # every hidden activation sees a zero-mean, unit-variance input (before the affine part,
+    # which starts as the identity)
+    seen = []
+    hooks = [
+        m.register_forward_hook(lambda _m, inp, _out: seen.append(inp[0]))
+        for m in critic.modules()
+        if isinstance(m, torch.nn.ReLU)
+    ]
+    obs = 10.0 * torch.randn(64, 6)
+    critic(obs, torch.rand(64, 2))
+    for hook in hooks:
+        hook.remove()
+    assert len(seen) == 2
+    for x in seen:
+        torch.testing.assert_close(x.mean(-1), torch.zeros(64), atol=1e-4, rtol=0)
+        torch.testing.assert_close(x.var(-1, unbiased=False), torch.ones(64), atol=1e-2, rtol=0)
+    # the loss's critic parameters (both critics) include the LayerNorm gains, and an update
+    # trains them
+    params = normed.loss.qvalue_network_params.flatten_keys()
+    gains = [k for k in params.keys() if k.endswith(".1.weight") or k.endswith(".4.weight")]
+    assert [tuple(params[k].shape) for k in gains] == [(2, 32), (2, 16)]
+    before = params.clone()
+    normed.learn(env.rollout(20, break_when_any_done=False), num_updates=2)
+    after = normed.loss.qvalue_network_params.flatten_keys()
+    assert all(not torch.equal(before[k], after[k]) for k in gains)

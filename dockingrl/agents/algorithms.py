@@ -112,15 +112,23 @@ def mlp(
     *,
     activation: str = "relu",
     orthogonal_gain: float | None = None,
+    layer_norm: bool = False,
 ) -> nn.Module:
     """Observation scaling then an MLP. ``orthogonal_gain`` (``None``: PyTorch's default
     init) gives orthogonal weights of gain sqrt(2) in the hidden layers and ``orthogonal_gain``
-    on the output layer, with zero biases (stable-baselines3's init)."""
+    on the output layer, with zero biases (stable-baselines3's init). ``layer_norm`` puts a
+    ``LayerNorm`` after each hidden linear layer, before its activation."""
+    norm = (
+        {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": h} for h in hidden]}
+        if layer_norm
+        else {}
+    )
     net = MLP(
         in_features=in_features,
         out_features=out_features,
         num_cells=list(hidden),
         activation_class=getattr(nn, ACTIVATIONS[activation]),
+        **norm,
     )
     if orthogonal_gain is not None:
         linears = [m for m in net.modules() if isinstance(m, nn.Linear)]
@@ -134,9 +142,15 @@ def mlp(
 class _Critic(nn.Module):
     """Q(o, a): the scaled observation and the action through one MLP."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden, scale) -> None:
+    def __init__(self, obs_dim: int, act_dim: int, hidden, scale, layer_norm=False) -> None:
         super().__init__()
-        self.net = mlp(obs_dim + act_dim, 1, hidden, torch.cat((scale, torch.ones(act_dim))))
+        self.net = mlp(
+            obs_dim + act_dim,
+            1,
+            hidden,
+            torch.cat((scale, torch.ones(act_dim))),
+            layer_norm=layer_norm,
+        )
 
     def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat((observation, action), dim=-1))
@@ -402,7 +416,8 @@ def _replay_buffer(cfg, device) -> TensorDictReplayBuffer:
 
 def _make_sac(cfg: SACConfig, actor, obs_dim, act_dim, scale, device) -> Agent:
     qvalue = ValueOperator(
-        _Critic(obs_dim, act_dim, cfg.hidden, scale), in_keys=["observation", "action"]
+        _Critic(obs_dim, act_dim, cfg.hidden, scale, cfg.critic_layer_norm),
+        in_keys=["observation", "action"],
     ).to(device)
     loss = SACLoss(
         actor_network=actor,
@@ -433,7 +448,8 @@ def _make_sac(cfg: SACConfig, actor, obs_dim, act_dim, scale, device) -> Agent:
 
 def _make_td3(cfg: TD3Config, actor, action_spec, obs_dim, act_dim, scale, device) -> Agent:
     qvalue = ValueOperator(
-        _Critic(obs_dim, act_dim, cfg.hidden, scale), in_keys=["observation", "action"]
+        _Critic(obs_dim, act_dim, cfg.hidden, scale, cfg.critic_layer_norm),
+        in_keys=["observation", "action"],
     ).to(device)
     exploration = TensorDictSequential(
         actor,

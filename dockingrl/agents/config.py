@@ -27,6 +27,12 @@ N_STEPS_DOC = (
 )
 
 
+#: the off-policy configs' critic_layer_norm field
+CRITIC_LAYER_NORM_DOC = (
+    "LayerNorm after each hidden layer of the critics, before the activation (not in the paper)"
+)
+
+
 def _doc(text: str, **kwargs) -> Any:
     return field(metadata={"doc": text}, **kwargs)
 
@@ -170,6 +176,7 @@ class SACConfig(TrainConfig):
     updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
     frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
     n_steps: int = _doc(N_STEPS_DOC, default=1)
+    critic_layer_norm: bool = _doc(CRITIC_LAYER_NORM_DOC, default=False)
 
     def validate(self) -> None:
         super().validate()
@@ -199,6 +206,7 @@ class TD3Config(TrainConfig):
     exploration_sigma: float = _doc("Gaussian action-noise sigma while collecting", default=0.2)
     frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
     n_steps: int = _doc(N_STEPS_DOC, default=1)
+    critic_layer_norm: bool = _doc(CRITIC_LAYER_NORM_DOC, default=False)
 
     def validate(self) -> None:
         super().validate()
