@@ -218,9 +218,7 @@ def run_filter(
             value = w.pow(2).sum(-1)  # y^T S^-1 y
             nis.append(torch.where(fresh[t], torch.full_like(value, float("nan")), value))
         new_mean, new_cov = ekf_update(prior_mean, prior_cov, z[t], current[t], R, diagonal=True)
-        init_mean, init_cov = ekf.initial_estimate(z[t], current[t])
-        mean = torch.where(fresh[t].unsqueeze(-1), init_mean, new_mean)
-        cov = torch.where(fresh[t].view(-1, 1, 1), init_cov, new_cov)
+        mean, cov = ekf.start_where(fresh[t], new_mean, new_cov, z[t], current[t])
         if objective == "supervised":
             nll = gaussian_nll(state_error(mean, data["true_state"][t]), cov)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))

@@ -60,15 +60,12 @@ class OnboardStep(nn.Module):
         return command, mean, cov, age
 
     def _filter(self, z, current, mean, cov, command, age):
-        ekf = self.ekf
-        init_mean, init_cov = ekf.initial_estimate(z, current)
-        new_mean, new_cov, new_filtered = ekf.filter_step(
+        new_mean, new_cov, new_filtered = self.ekf.filter_step(
             mean, cov, command, z, current, age.clamp_min(0).squeeze(-1)
         )
         fresh = age < 0
-        mean = torch.where(fresh, init_mean, new_mean)
-        cov = torch.where(fresh.unsqueeze(-1), init_cov, new_cov)
-        filtered = torch.where(fresh, measurement_function(init_mean, current), new_filtered)
+        mean, cov = self.ekf.start_where(fresh.squeeze(-1), new_mean, new_cov, z, current)
+        filtered = torch.where(fresh, measurement_function(mean, current), new_filtered)
         return mean, cov, filtered, torch.where(fresh, torch.zeros_like(age), age + 1)
 
 

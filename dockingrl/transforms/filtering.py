@@ -408,6 +408,15 @@ class EKFTransform(Transform):
         R = torch.diag_embed(self.measurement_noise(observation[..., 0]))
         return mean, initial_covariance(observation, current, R.to(observation.dtype))
 
+    def start_where(self, fresh, mean, cov, observation, current):
+        """``(mean, cov)`` with the envs where ``fresh`` (shape ``mean.shape[:-1]``) started
+        over from :meth:`initial_estimate` of their ``observation``: a new episode's first
+        readings. The transform's reset, :func:`dockingrl.filter_learning.run_filter` and
+        :class:`dockingrl.OnboardPolicy` start episodes through it."""
+        init_mean, init_cov = self.initial_estimate(observation, current)
+        fresh = fresh.unsqueeze(-1)
+        return torch.where(fresh, init_mean, mean), torch.where(fresh.unsqueeze(-1), init_cov, cov)
+
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         age = tensordict.get(self.age_key)
         mean, cov, filtered = self.filter_step(
@@ -429,15 +438,17 @@ class EKFTransform(Transform):
     ) -> TensorDictBase:
         z = tensordict_reset.get(self.observation_key)
         current = tensordict_reset.get(self.current_key)
-        mean, cov = self.initial_estimate(z, current)
         age = torch.zeros_like(z[..., :1])
         previous_mean = tensordict.get(self.mean_key, None)
-        if previous_mean is not None:
+        if previous_mean is None:
+            mean, cov = self.initial_estimate(z, current)
+        else:
             reset = _get_reset(self.parent.reset_keys[0], tensordict)
-            reset = reset.reshape(*reset.shape[: z.dim() - 1], 1)
-            mean = torch.where(reset, mean, previous_mean)
-            cov = torch.where(reset.unsqueeze(-1), cov, tensordict.get(self.cov_key))
-            age = torch.where(reset, age, tensordict.get(self.age_key))
+            reset = reset.reshape(z.shape[:-1])
+            mean, cov = self.start_where(
+                reset, previous_mean, tensordict.get(self.cov_key), z, current
+            )
+            age = torch.where(reset.unsqueeze(-1), age, tensordict.get(self.age_key))
         tensordict_reset.set(self.mean_key, mean)
         tensordict_reset.set(self.cov_key, cov)
         tensordict_reset.set(self.age_key, age)
