@@ -19,20 +19,6 @@ LR_SCHEDULES = ("constant", "linear")
 ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh"}
 
 
-#: the off-policy configs' n_steps field
-N_STEPS_DOC = (
-    "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
-    "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
-    "targets; not in the paper)"
-)
-
-
-#: the off-policy configs' critic_layer_norm field
-CRITIC_LAYER_NORM_DOC = (
-    "LayerNorm after each hidden layer of the critics, before the activation (not in the paper)"
-)
-
-
 def _doc(text: str, **kwargs) -> Any:
     return field(metadata={"doc": text}, **kwargs)
 
@@ -153,7 +139,54 @@ class TrainConfig:
 
 
 @dataclass
-class SACConfig(TrainConfig):
+class OffPolicyConfig(TrainConfig):
+    """What SAC and TD3 share: a replay buffer, soft target updates, the update-to-data
+    ratio."""
+
+    batch_size: int = _doc("minibatch size", default=256)
+    gamma: float = _doc("discount", default=0.99)
+    lr: float = _doc("Adam learning rate, actor and critics", default=3e-4)
+    buffer_size: int = _doc("replay buffer capacity", default=1_000_000)
+    start_steps: int = _doc("uniformly random env steps before learning", default=10_000)
+    tau: float = _doc("target-network soft-update rate (every target update)", default=0.005)
+    updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
+    frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
+    n_steps: int = _doc(
+        "n-step bootstrapped targets: rewards summed over up to n steps of the episode, then "
+        "gamma^m times the target critic, m <= n the steps summed (1: the paper's one-step "
+        "targets; not in the paper)",
+        default=1,
+    )
+    critic_layer_norm: bool = _doc(
+        "LayerNorm after each hidden layer of the critics, before the activation (not in "
+        "the paper)",
+        default=False,
+    )
+
+    def validate(self) -> None:
+        super().validate()
+        name = type(self).__name__
+        if self.n_steps < 1:
+            raise ValueError(f"{name}.n_steps: must be >= 1 (got {self.n_steps})")
+        if self.n_steps > self.frames_per_batch // self.num_envs:
+            raise ValueError(
+                f"{name}.n_steps: at most the steps per env of one collection, "
+                f"frames_per_batch // num_envs = {self.frames_per_batch // self.num_envs} "
+                f"(got {self.n_steps})"
+            )
+        if self.batch_size < 1 or self.buffer_size < self.batch_size:
+            raise ValueError(
+                f"{name}.buffer_size: must hold at least one batch "
+                f"({self.buffer_size} < {self.batch_size})"
+            )
+        if self.updates_per_step <= 0:
+            raise ValueError(f"{name}.updates_per_step: must be > 0")
+        if self.frames_per_batch < self.num_envs:
+            raise ValueError(f"{name}.frames_per_batch: must be >= num_envs")
+
+
+@dataclass
+class SACConfig(OffPolicyConfig):
     """SAC, Table 3."""
 
     algo: str = "sac"
@@ -167,24 +200,10 @@ class SACConfig(TrainConfig):
         "= -3.71 here",
         default=-2.0,
     )
-    batch_size: int = _doc("minibatch size", default=256)
-    gamma: float = _doc("discount", default=0.99)
-    lr: float = _doc("Adam learning rate, actor and critics", default=3e-4)
-    buffer_size: int = _doc("replay buffer capacity", default=1_000_000)
-    start_steps: int = _doc("uniformly random env steps before learning", default=10_000)
-    tau: float = _doc("target-network soft-update rate (every update)", default=0.005)
-    updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
-    frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
-    n_steps: int = _doc(N_STEPS_DOC, default=1)
-    critic_layer_norm: bool = _doc(CRITIC_LAYER_NORM_DOC, default=False)
-
-    def validate(self) -> None:
-        super().validate()
-        _check_off_policy(self)
 
 
 @dataclass
-class TD3Config(TrainConfig):
+class TD3Config(OffPolicyConfig):
     """TD3, Table 4."""
 
     algo: str = "td3"
@@ -192,25 +211,16 @@ class TD3Config(TrainConfig):
     eval_every: int = _doc("env steps between periodic evaluations", default=50_000)
     hidden: tuple[int, ...] = _doc("hidden layer sizes of actor and critic", default=(400, 300))
     lr: float = _doc("Adam learning rate, actor and critics", default=5e-4)
-    buffer_size: int = _doc("replay buffer capacity", default=1_000_000)
     start_steps: int = _doc(
         "uniformly random env steps before learning (learning_starts)", default=100
     )
-    batch_size: int = _doc("minibatch size", default=256)
-    tau: float = _doc("target-network soft-update rate", default=0.005)
-    gamma: float = _doc("discount", default=0.99)
-    updates_per_step: float = _doc("gradient updates per env step (UTD ratio)", default=1.0)
     policy_delay: int = _doc("critic updates per actor and target update", default=2)
     target_policy_noise: float = _doc("target policy smoothing noise sigma", default=0.2)
     target_noise_clip: float = _doc("target policy smoothing noise clip", default=0.5)
     exploration_sigma: float = _doc("Gaussian action-noise sigma while collecting", default=0.2)
-    frames_per_batch: int = _doc("env steps collected between update rounds", default=1_000)
-    n_steps: int = _doc(N_STEPS_DOC, default=1)
-    critic_layer_norm: bool = _doc(CRITIC_LAYER_NORM_DOC, default=False)
 
     def validate(self) -> None:
         super().validate()
-        _check_off_policy(self)
         if self.policy_delay < 1:
             raise ValueError(f"TD3Config.policy_delay: must be >= 1 (got {self.policy_delay})")
 
@@ -286,26 +296,6 @@ class PPOConfig(TrainConfig):
                 "PPOConfig.compile_update: not available for PPO (compiling ClipPPOLoss did not "
                 "finish within 10 minutes on a 2-core CPU)"
             )
-
-
-def _check_off_policy(cfg) -> None:
-    if cfg.n_steps < 1:
-        raise ValueError(f"{type(cfg).__name__}.n_steps: must be >= 1 (got {cfg.n_steps})")
-    if cfg.n_steps > cfg.frames_per_batch // cfg.num_envs:
-        raise ValueError(
-            f"{type(cfg).__name__}.n_steps: at most the steps per env of one collection, "
-            f"frames_per_batch // num_envs = {cfg.frames_per_batch // cfg.num_envs} "
-            f"(got {cfg.n_steps})"
-        )
-    if cfg.batch_size < 1 or cfg.buffer_size < cfg.batch_size:
-        raise ValueError(
-            f"{type(cfg).__name__}.buffer_size: must hold at least one batch "
-            f"({cfg.buffer_size} < {cfg.batch_size})"
-        )
-    if cfg.updates_per_step <= 0:
-        raise ValueError(f"{type(cfg).__name__}.updates_per_step: must be > 0")
-    if cfg.frames_per_batch < cfg.num_envs:
-        raise ValueError(f"{type(cfg).__name__}.frames_per_batch: must be >= num_envs")
 
 
 CONFIGS = {"sac": SACConfig, "td3": TD3Config, "ppo": PPOConfig}
