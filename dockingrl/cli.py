@@ -93,6 +93,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if success_time["n"]:
         line += f"; time over successes {success_time['mean']:.1f} +- {success_time['std']:.1f} s"
     print(line)
+    thirds = ", ".join(
+        f"{t['oc_x']} {t['success_rate']:.1f} %" for t in metrics["by_current_x"] if t["episodes"]
+    )
+    print(
+        f"success by oc_x: {thirds}; timeouts ending beyond the station: "
+        f"{metrics['timeouts_beyond_station']}"
+    )
     if out is not None:
         write_json(out / "eval.json", metrics)
     if args.map:

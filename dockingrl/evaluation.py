@@ -65,7 +65,8 @@ def run_episodes(
 
     Returns per-episode tensors (CPU): ``success``, ``docked`` (terminated by contact),
     ``truncated``, ``contact_score``, ``contact_speed``, ``steps``, ``total_reward``,
-    ``ocean_current``, ``start`` (pose), and with ``record_trajectories`` the ``trajectory``
+    ``ocean_current``, ``start`` and ``end`` (true poses ``x, y, alpha`` at the first step
+    and at the episode's end), and with ``record_trajectories`` the ``trajectory``
     ``(num_envs, T + 1, 3)`` of true poses (frozen after the end).
     """
     sim = base_env(env)
@@ -91,6 +92,7 @@ def run_episodes(
         td = env.reset()
         out["ocean_current"] = td["ocean_current"].clone()
         out["start"] = td["true_state"][:, :3].clone()
+        out["end"] = out["start"].clone()
         poses = [td["true_state"][:, :3].clone()]
         for _ in range(max_steps):
             td = env.step(policy(td))
@@ -108,8 +110,9 @@ def run_episodes(
             ):
                 value = nxt[source].squeeze(-1)
                 out[key] = torch.where(done, value, out[key])
+            pose = nxt["true_state"][:, :3]
+            out["end"] = torch.where(done.unsqueeze(-1), pose, out["end"])
             if record_trajectories:
-                pose = nxt["true_state"][:, :3]
                 poses.append(torch.where(active.unsqueeze(-1), pose, poses[-1]))
             active = active & ~done
             if bar is not None:
@@ -131,7 +134,20 @@ def _stats(values: torch.Tensor, over: str) -> dict[str, Any]:
     return {"over": over, "n": int(v.size), "mean": float(v.mean()), "std": float(v.std())}
 
 
-def summarize(outcomes: dict[str, torch.Tensor], dt: float, speed_limit: float) -> dict:
+def _failures(docked, score, speed, speed_limit) -> dict[str, int]:
+    return {
+        "timeout": int((~docked).sum()),
+        "missed_funnel": int((docked & (score <= 0)).sum()),
+        "too_fast": int((docked & (score > 0) & (speed > speed_limit)).sum()),
+    }
+
+
+def summarize(
+    outcomes: dict[str, torch.Tensor],
+    dt: float,
+    speed_limit: float,
+    current_range: tuple[float, float] = (-0.3, 0.3),
+) -> dict:
     """Table 6/7 metrics from :func:`run_episodes` outcomes.
 
     - ``success_rate`` (%): docked within the time limit with ``g > 0`` and ground speed
@@ -143,6 +159,11 @@ def summarize(outcomes: dict[str, torch.Tensor], dt: float, speed_limit: float) 
     - ``contact_score`` (``g``) and ``contact_speed`` (m/s): over docked episodes.
     - ``failures``: ``timeout`` (no contact in time), ``missed_funnel`` (contact with
       ``g <= 0``), ``too_fast`` (contact with ``g > 0`` above the speed limit).
+    - ``timeouts_beyond_station``: timeouts that ended at ``x > 0``, past the station's
+      entrance plane (the AUV starts at ``x < 0`` and docks moving in ``+x``).
+    - ``by_current_x``: episodes, success rate and failures in the three equal thirds of
+      ``current_range`` for ``oc_x``: opposing (carries the AUV away from the station),
+      across, following (carries it towards the station).
 
     Standard deviations are population ones (``ddof = 0``).
     """
@@ -159,12 +180,37 @@ def summarize(outcomes: dict[str, torch.Tensor], dt: float, speed_limit: float) 
         "total_reward": _stats(outcomes["total_reward"], "all episodes"),
         "contact_score": _stats(score[docked], "docked episodes"),
         "contact_speed": _stats(speed[docked], "docked episodes"),
-        "failures": {
-            "timeout": int((~docked).sum()),
-            "missed_funnel": int((docked & (score <= 0)).sum()),
-            "too_fast": int((docked & (score > 0) & (speed > speed_limit)).sum()),
-        },
+        "failures": _failures(docked, score, speed, speed_limit),
+        "timeouts_beyond_station": int((~docked & (outcomes["end"][:, 0] > 0)).sum()),
+        "by_current_x": _by_current_x(outcomes, speed_limit, current_range),
     }
+
+
+def _by_current_x(outcomes, speed_limit, current_range) -> list[dict]:
+    low, high = current_range
+    edges = [low + (high - low) * k / 3 for k in range(4)]
+    oc_x = outcomes["ocean_current"][:, 0]
+    thirds = []
+    for k, name in enumerate(("opposing", "across", "following")):
+        mask = (oc_x >= edges[k]) & ((oc_x < edges[k + 1]) if k < 2 else (oc_x <= edges[3]))
+        n = int(mask.sum())
+        thirds.append(
+            {
+                "oc_x": name,
+                "range": [edges[k], edges[k + 1]],
+                "episodes": n,
+                "success_rate": 100.0 * float(outcomes["success"][mask].double().mean())
+                if n
+                else None,
+                "failures": _failures(
+                    outcomes["docked"][mask],
+                    outcomes["contact_score"][mask],
+                    outcomes["contact_speed"][mask],
+                    speed_limit,
+                ),
+            }
+        )
+    return thirds
 
 
 def describe_machine(device: torch.device | str | None = None) -> str:
@@ -237,7 +283,7 @@ def evaluate(
         "scenario": name,
         "seed": seed,
         "policy_mode": "stochastic" if stochastic else "deterministic",
-        **summarize(outcomes, sim.config.dt, speed_limit),
+        **summarize(outcomes, sim.config.dt, speed_limit, sim.config.ocean_current_range),
         "wall_clock_s": time.perf_counter() - start,
         "machine": describe_machine(sim.device),
     }

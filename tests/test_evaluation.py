@@ -60,6 +60,30 @@ def test_forced_contacts_are_counted_with_their_score_and_speed():
     assert m["contact_speed"]["mean"] > (0.2 + 0.2 + 0.3) / 3
 
 
+def test_failures_are_split_by_the_current_along_the_approach():
+    env = make_env("no_noise", 4, seed=0)
+    base_env(env).set_initial_state(
+        pose=torch.tensor([[-0.9, 0.0, 0.0], [-0.9, 3.0, 0.0], [-10, 0.0, 0.0], [-10, 3.0, 0.0]]),
+        ocean_current=torch.tensor([[0.25, 0.0], [0.25, 0.0], [-0.25, 0.0], [0.0, 0.1]]),
+    )
+    # a still AUV: env 0 drifts into the funnel, env 1 drifts past the station beside it (to
+    # x = -0.9 + 0.25 * 120 s), envs 2 and 3 never arrive
+    m = evaluate(constant_policy(0.0), env, seed=0)
+    assert m["failures"]["timeout"] == 3
+    assert m["timeouts_beyond_station"] == 1
+    thirds = {t["oc_x"]: t for t in m["by_current_x"]}
+    assert [t["oc_x"] for t in m["by_current_x"]] == ["opposing", "across", "following"]
+    assert thirds["opposing"]["range"] == pytest.approx([-0.3, -0.1])
+    assert [thirds[k]["episodes"] for k in ("opposing", "across", "following")] == [1, 1, 2]
+    assert thirds["opposing"]["failures"]["timeout"] == 1
+    assert thirds["across"]["failures"]["timeout"] == 1
+    assert thirds["following"]["failures"]["timeout"] == 1
+    for key in ("timeout", "missed_funnel", "too_fast"):
+        assert sum(t["failures"][key] for t in thirds.values()) == m["failures"][key]
+    successes = sum(t["success_rate"] / 100 * t["episodes"] for t in thirds.values())
+    assert successes == pytest.approx(m["success_rate"] / 100 * 4)
+
+
 def test_success_map_and_plots(tmp_path):
     result = success_map(ManagedSurgePolicy(), "noise", cells=3, trials=2, seed=1)
     rate = torch.tensor(result["success_rate"])
