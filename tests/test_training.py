@@ -268,11 +268,25 @@ def test_wandb_offline_logging(tmp_path, monkeypatch):
     assert offline, "wandb wrote no offline run"
 
 
+def collect_once(env, policy, frames: int):
+    """One batch of ``frames`` env steps collected by ``policy``."""
+    from torchrl.collectors import Collector
+
+    collector = Collector(
+        env,
+        policy,
+        frames_per_batch=frames,
+        total_frames=frames,
+        auto_register_policy_transforms=False,
+    )
+    data = next(iter(collector))
+    collector.shutdown()
+    return data
+
+
 def test_ppo_reward_scale_scales_the_learning_signal_not_the_data(tmp_path):
     """``reward_scale`` multiplies the rewards GAE and the critic see; the collected data (and
     so the logged episode rewards) keep the paper's scale."""
-    from torchrl.collectors import Collector
-
     from dockingrl.agents.algorithms import make_agent
     from dockingrl.scenarios import make_env
 
@@ -281,15 +295,7 @@ def test_ppo_reward_scale_scales_the_learning_signal_not_the_data(tmp_path):
         cfg = tiny_config("ppo", "compound", tmp_path, reward_scale=scale, epochs=1)
         env = make_env("compound", 8, seed=1)
         agent = make_agent(cfg, 12, env.action_spec[0].clone(), 30.0)
-        collector = Collector(
-            env,
-            agent.exploration_policy,
-            frames_per_batch=256,
-            total_frames=256,
-            auto_register_policy_transforms=False,
-        )
-        data = next(iter(collector))
-        collector.shutdown()
+        data = collect_once(env, agent.exploration_policy, 256)
         reward = data["next", "reward"].clone()
         losses = agent.learn(data)
         assert torch.equal(data["next", "reward"], reward)
@@ -310,8 +316,6 @@ def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path):
 def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
     """``lr_schedule="linear"`` sets Adam's rate to ``lr (1 - progress)`` before each update;
     ``constant`` keeps ``lr``; an unknown schedule is refused."""
-    from torchrl.collectors import Collector
-
     from dockingrl.agents.algorithms import make_agent
     from dockingrl.scenarios import make_env
 
@@ -320,15 +324,7 @@ def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
     for schedule in ("constant", "linear"):
         cfg = tiny_config("ppo", "noise", tmp_path, epochs=1, lr=1e-3, lr_schedule=schedule)
         agent = make_agent(cfg, 6, env.action_spec[0].clone(), 30.0)
-        collector = Collector(
-            env,
-            agent.exploration_policy,
-            frames_per_batch=64,
-            total_frames=64,
-            auto_register_policy_transforms=False,
-        )
-        data = next(iter(collector))
-        collector.shutdown()
+        data = collect_once(env, agent.exploration_policy, 64)
         for progress in (0.0, 0.75):
             losses = agent.learn(data, progress=progress)
             rates[schedule, progress] = agent.optimizers["all"].param_groups[0]["lr"]
