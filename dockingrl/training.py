@@ -21,7 +21,7 @@ from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import make_env
-from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor
+from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
 
@@ -112,10 +112,12 @@ def env_kwargs(cfg: TrainConfig) -> dict:
 def training_transforms(cfg: TrainConfig) -> list:
     """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
     the paper's eq. 12), then the optional terms the agent learns from: the floor on a miss's
-    contact reward and the contact-speed penalty."""
+    contact reward, the contact-speed penalty, and the end of an episode that passes the
+    station."""
     from dockingrl.env import DockingConfig
 
-    contact_weight = DockingConfig().contact_weight
+    base = DockingConfig()
+    contact_weight = base.contact_weight
     transforms = [RewardSum()]
     if cfg.miss_penalty_floor > 0:
         transforms.append(MissPenaltyFloor(cfg.miss_penalty_floor, contact_weight))
@@ -124,6 +126,8 @@ def training_transforms(cfg: TrainConfig) -> list:
         transforms.append(
             ContactSpeedPenalty(cfg.contact_speed_penalty, cfg.contact_speed_target, cap)
         )
+    if cfg.passed_station_penalty > 0:
+        transforms.append(PassedStationEnd(cfg.passed_station_penalty, base.dock_x[1]))
     return transforms
 
 

@@ -7,7 +7,7 @@ from dockingrl import make_env
 from dockingrl.agents.config import make_config
 from dockingrl.evaluation import base_env
 from dockingrl.training import training_transforms
-from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor
+from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
 
 WEIGHT, TARGET = 2000.0, 0.27
 
@@ -120,3 +120,63 @@ def test_training_transforms_add_the_floor_before_the_penalty():
         make_config("ppo", miss_penalty_floor=-1.0)
     with pytest.raises(ValueError, match="floor"):
         MissPenaltyFloor(0.0)
+
+
+def test_passing_the_station_ends_the_episode_with_the_penalty():
+    """Env 0 drifts past the entrance plane 2 m beside the funnel, env 1 into it: env 0's
+    episode ends (terminated) on the crossing step with the penalty on top of eq. 12; env 1's
+    contact is left alone; logged episode rewards are the paper's."""
+    penalty = 150.0
+    poses = ((-1.0, 2.0, 0.0), (-1.0, 0.0, 0.0))
+    plain = fast_contact_rollout([RewardSum()], pose=poses)
+    ended = fast_contact_rollout([RewardSum(), PassedStationEnd(penalty)], pose=poses)
+    x = ended["true_state"][..., 0]
+    crossed = int((x[:, 0] > 0).nonzero()[0])
+    assert bool((x[:crossed, 0] <= 0).all())
+    assert ended["terminated"][crossed, 0] and ended["done"][crossed, 0]
+    assert not ended["truncated"][crossed, 0] and not ended["success"][crossed, 0]
+    assert not plain["done"][crossed, 0]  # the paper's env goes on
+    steps = min(len(plain), len(ended))  # the shaped rollout stops when both are done
+    difference = (ended["reward"][:steps] - plain["reward"][:steps]).squeeze(-1)
+    assert difference[crossed, 0] == pytest.approx(-penalty)
+    assert bool((difference[:crossed, 0] == 0).all())
+    docked = int(plain["done"][:, 1].squeeze(-1).nonzero()[0])  # later steps: past its end
+    assert bool((difference[: docked + 1, 1] == 0).all())
+    assert bool(ended["terminated"][docked, 1]) and float(ended["contact_score"][docked, 1]) > 0
+    torch.testing.assert_close(
+        ended["episode_reward"][crossed, 0], plain["episode_reward"][crossed, 0]
+    )
+
+
+def test_an_env_that_passed_the_station_is_reset_by_the_collector():
+    env = make_env("noise", 2, seed=0, transforms=[PassedStationEnd(100.0)])
+    check_env_specs(env)
+    base_env(env).set_initial_state(
+        pose=torch.tensor([[-0.3, 2.0, 0.0], [-20.0, 0.0, 0.0]]),
+        ocean_current=torch.tensor([[0.3, 0.0], [0.0, 0.0]]),
+    )
+    td = env.reset()
+    td["action"] = torch.zeros(2, 2)
+    td, root = env.step_and_maybe_reset(td)
+    for _ in range(5):
+        if bool(td["next", "done"][0]):
+            break
+        root["action"] = torch.zeros(2, 2)
+        td, root = env.step_and_maybe_reset(root)
+    assert bool(td["next", "done"][0]) and bool(td["next", "terminated"][0])
+    # the next root is a fresh episode for env 0 (back at its pinned start), env 1 goes on
+    assert float(td["next", "true_state"][0, 0]) > 0
+    assert int(root["step_count"][0]) == 0
+    assert float(root["true_state"][0, 0]) == pytest.approx(-0.3)
+    assert int(root["step_count"][1]) > 0
+
+
+def test_training_transforms_end_episodes_past_the_station_when_asked():
+    cfg = make_config("sac", passed_station_penalty=200.0)
+    last = training_transforms(cfg)[-1]
+    assert isinstance(last, PassedStationEnd) and last.penalty == 200.0
+    assert last.entrance_x == 0.0
+    with pytest.raises(ValueError, match="passed_station_penalty"):
+        make_config("sac", passed_station_penalty=-1.0)
+    with pytest.raises(ValueError, match="penalty"):
+        PassedStationEnd(0.0)

@@ -79,6 +79,12 @@ class TrainConfig:
         "(0: off; not in the paper)",
         default=0.0,
     )
+    passed_station_penalty: float = _doc(
+        "training envs: an episode ends, with this penalty, when the AUV passes the "
+        "station's entrance plane (x > 0) beside the funnel; evaluation keeps the paper's "
+        "episodes (0: off; not in the paper)",
+        default=0.0,
+    )
 
     time_budget_s: float = _doc(
         "stop once training (periodic evaluations included) has run this many seconds, "
@@ -117,7 +123,12 @@ class TrainConfig:
                 fail(name, "must be >= 1")
         if self.checkpoint_every < 0:
             fail("checkpoint_every", "must be >= 0")
-        for name in ("contact_speed_penalty", "miss_penalty_floor", "time_budget_s"):
+        for name in (
+            "contact_speed_penalty",
+            "miss_penalty_floor",
+            "passed_station_penalty",
+            "time_budget_s",
+        ):
             if getattr(self, name) < 0:
                 fail(name, "must be >= 0")
         if not 0.0 <= self.following_current_fraction <= 1.0:

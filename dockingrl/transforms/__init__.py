@@ -17,12 +17,13 @@ from dockingrl.transforms.filtering import (
     NoiseContext,
     ProcessNoise,
 )
-from dockingrl.transforms.shaping import ContactSpeedPenalty, MissPenaltyFloor
+from dockingrl.transforms.shaping import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
 
 __all__ = [
     "CompoundObservation",
     "ContactSpeedPenalty",
     "MissPenaltyFloor",
+    "PassedStationEnd",
     "EKFTransform",
     "MeasurementNoise",
     "NoiseContext",

@@ -103,3 +103,48 @@ class MissPenaltyFloor(Transform):
         self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
     ) -> TensorDictBase:
         return tensordict_reset
+
+
+class PassedStationEnd(Transform):
+    """Ends a training episode when the AUV passes the station's entrance plane beside the
+    funnel, with a penalty (training only, not in the paper).
+
+    The AUV starts at ``x < 0`` and docks moving in ``+x``; the contact box ends at the entrance
+    plane ``x = dock_x[1]``. An AUV that a following current carries past the plane beside the
+    box can only dock by turning back against the current and round to the mouth, which the
+    trained agents do not do: in the paper's env it drifts on, at about ``-rho / 30`` a step,
+    until the time limit. That cost is spread over hundreds of discounted steps and is smaller
+    than a miss's; this transform charges it at once, as ``penalty`` on the step the plane is
+    crossed, and ends the episode there (``terminated``: no bootstrap). Evaluation keeps the
+    paper's episodes; logged episode rewards (``RewardSum`` placed before it) are unchanged.
+
+    Args:
+        penalty: reward units subtracted on the crossing step (> 0).
+        entrance_x: the plane, the env's ``DockingConfig.dock_x[1]``.
+    """
+
+    def __init__(self, penalty: float, entrance_x: float = 0.0) -> None:
+        if not penalty > 0:
+            raise ValueError(f"penalty must be > 0, got {penalty!r}")
+        super().__init__(
+            in_keys=["reward", "true_state", "terminated"],
+            out_keys=["reward", "terminated", "truncated", "done"],
+        )
+        self.penalty = float(penalty)
+        self.entrance_x = float(entrance_x)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        terminated = next_tensordict.get("terminated")
+        passed = (next_tensordict.get("true_state")[..., :1] > self.entrance_x) & ~terminated
+        next_tensordict.set("reward", next_tensordict.get("reward") - self.penalty * passed)
+        terminated = terminated | passed
+        truncated = next_tensordict.get("truncated") & ~passed
+        next_tensordict.set("terminated", terminated)
+        next_tensordict.set("truncated", truncated)
+        next_tensordict.set("done", terminated | truncated)
+        return next_tensordict
+
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        return tensordict_reset
