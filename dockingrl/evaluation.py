@@ -147,6 +147,7 @@ def summarize(
     dt: float,
     speed_limit: float,
     current_range: tuple[float, float] = (-0.3, 0.3),
+    entrance_x: float = 0.0,
 ) -> dict:
     """Table 6/7 metrics from :func:`run_episodes` outcomes.
 
@@ -159,11 +160,13 @@ def summarize(
     - ``contact_score`` (``g``) and ``contact_speed`` (m/s): over docked episodes.
     - ``failures``: ``timeout`` (no contact in time), ``missed_funnel`` (contact with
       ``g <= 0``), ``too_fast`` (contact with ``g > 0`` above the speed limit).
-    - ``timeouts_beyond_station``: timeouts that ended at ``x > 0``, past the station's
-      entrance plane (the AUV starts at ``x < 0`` and docks moving in ``+x``).
-    - ``by_current_x``: episodes, success rate and failures in the three equal thirds of
-      ``current_range`` for ``oc_x``: opposing (carries the AUV away from the station),
-      across, following (carries it towards the station).
+    - ``timeouts_beyond_station``: timeouts that ended at ``x > entrance_x``, past the
+      station's entrance plane (the AUV starts at ``x < 0`` and docks moving in ``+x``).
+    - ``by_current_x``: episodes, success rate and failures split by ``oc_x`` at the thirds
+      of ``current_range``: ``opposing`` (the lowest third: the current carries the AUV away
+      from the station), ``weak`` (the middle third) and ``following`` (the highest: it
+      carries the AUV towards the station); a current outside the range counts in the outer
+      third on its side, so the three add up to the totals. ``oc_y`` is not split.
 
     Standard deviations are population ones (``ddof = 0``).
     """
@@ -181,18 +184,18 @@ def summarize(
         "contact_score": _stats(score[docked], "docked episodes"),
         "contact_speed": _stats(speed[docked], "docked episodes"),
         "failures": _failures(docked, score, speed, speed_limit),
-        "timeouts_beyond_station": int((~docked & (outcomes["end"][:, 0] > 0)).sum()),
+        "timeouts_beyond_station": int((~docked & (outcomes["end"][:, 0] > entrance_x)).sum()),
         "by_current_x": _by_current_x(outcomes, speed_limit, current_range),
     }
 
 
 def _by_current_x(outcomes, speed_limit, current_range) -> list[dict]:
     low, high = current_range
-    edges = [low + (high - low) * k / 3 for k in range(4)]
+    edges = [round(low + (high - low) * k / 3, 12) for k in range(4)]
     oc_x = outcomes["ocean_current"][:, 0]
+    masks = (oc_x < edges[1], (oc_x >= edges[1]) & (oc_x < edges[2]), oc_x >= edges[2])
     thirds = []
-    for k, name in enumerate(("opposing", "across", "following")):
-        mask = (oc_x >= edges[k]) & ((oc_x < edges[k + 1]) if k < 2 else (oc_x <= edges[3]))
+    for k, (name, mask) in enumerate(zip(("opposing", "weak", "following"), masks, strict=True)):
         n = int(mask.sum())
         thirds.append(
             {
@@ -283,7 +286,13 @@ def evaluate(
         "scenario": name,
         "seed": seed,
         "policy_mode": "stochastic" if stochastic else "deterministic",
-        **summarize(outcomes, sim.config.dt, speed_limit, sim.config.ocean_current_range),
+        **summarize(
+            outcomes,
+            sim.config.dt,
+            speed_limit,
+            sim.config.ocean_current_range,
+            sim.config.dock_x[1],
+        ),
         "wall_clock_s": time.perf_counter() - start,
         "machine": describe_machine(sim.device),
     }

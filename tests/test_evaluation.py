@@ -8,7 +8,7 @@ from dockingrl import make_env
 from dockingrl.agents.managed_surge import ManagedSurgePolicy
 from dockingrl.cli import main as cli_main
 from dockingrl.env import DockingConfig
-from dockingrl.evaluation import base_env, evaluate, success_map, trajectories
+from dockingrl.evaluation import base_env, evaluate, success_map, summarize, trajectories
 from dockingrl.plots import plot_success_map, plot_trajectories
 
 
@@ -72,16 +72,35 @@ def test_failures_are_split_by_the_current_along_the_approach():
     assert m["failures"]["timeout"] == 3
     assert m["timeouts_beyond_station"] == 1
     thirds = {t["oc_x"]: t for t in m["by_current_x"]}
-    assert [t["oc_x"] for t in m["by_current_x"]] == ["opposing", "across", "following"]
-    assert thirds["opposing"]["range"] == pytest.approx([-0.3, -0.1])
-    assert [thirds[k]["episodes"] for k in ("opposing", "across", "following")] == [1, 1, 2]
+    assert [t["oc_x"] for t in m["by_current_x"]] == ["opposing", "weak", "following"]
+    assert thirds["opposing"]["range"] == [-0.3, -0.1]
+    assert [thirds[k]["episodes"] for k in ("opposing", "weak", "following")] == [1, 1, 2]
     assert thirds["opposing"]["failures"]["timeout"] == 1
-    assert thirds["across"]["failures"]["timeout"] == 1
+    assert thirds["weak"]["failures"]["timeout"] == 1
     assert thirds["following"]["failures"]["timeout"] == 1
     for key in ("timeout", "missed_funnel", "too_fast"):
         assert sum(t["failures"][key] for t in thirds.values()) == m["failures"][key]
     successes = sum(t["success_rate"] / 100 * t["episodes"] for t in thirds.values())
     assert successes == pytest.approx(m["success_rate"] / 100 * 4)
+
+
+def test_currents_outside_the_range_count_in_the_outer_thirds():
+    n = 4
+    outcomes = {
+        "success": torch.tensor([True, False, False, True]),
+        "docked": torch.tensor([True, False, False, True]),
+        "contact_score": torch.tensor([0.5, 0.0, 0.0, 0.9]),
+        "contact_speed": torch.tensor([0.2, 0.0, 0.0, 0.1]),
+        "steps": torch.full((n,), 100),
+        "total_reward": torch.zeros(n),
+        "ocean_current": torch.tensor([[-0.35, 0.0], [-0.3, 0.0], [0.0, 0.0], [0.35, 0.0]]),
+        "end": torch.tensor([[-0.5, 0.0, 0.0], [0.2, 3.0, 0.0], [-9.0, 0.0, 0.0], [-0.1, 0, 0]]),
+    }
+    m = summarize(outcomes, 0.2, 0.3, (-0.3, 0.3), entrance_x=0.0)
+    assert [t["episodes"] for t in m["by_current_x"]] == [2, 1, 1]
+    assert [t["success_rate"] for t in m["by_current_x"]] == [50.0, 0.0, 100.0]
+    assert m["timeouts_beyond_station"] == 1
+    assert summarize(outcomes, 0.2, 0.3, entrance_x=0.5)["timeouts_beyond_station"] == 0
 
 
 def test_success_map_and_plots(tmp_path):

@@ -158,7 +158,7 @@ def test_an_env_that_passed_the_station_is_reset_by_the_collector():
     td = env.reset()
     td["action"] = torch.zeros(2, 2)
     td, root = env.step_and_maybe_reset(td)
-    for _ in range(5):
+    for _ in range(20):  # 0.06 m a step: the plane is crossed at the 6th
         if bool(td["next", "done"][0]):
             break
         root["action"] = torch.zeros(2, 2)

@@ -183,6 +183,25 @@ def test_impossible_configs_are_refused():
         make_config("td3", total_steps=0)
 
 
+@pytest.mark.parametrize(
+    ("algo", "field", "value"),
+    [
+        ("sac", "tau", 0.0),
+        ("sac", "gamma", 1.5),
+        ("td3", "lr", -1e-3),
+        ("sac", "start_steps", -5),
+        ("td3", "exploration_sigma", -0.1),
+        ("ppo", "gae_lambda", 1.2),
+        ("ppo", "clip", 0.0),
+        ("ppo", "entropy_coef", -0.01),
+        ("sac", "frames_per_batch", 8),  # fewer than the 16 envs
+    ],
+)
+def test_out_of_range_hyperparameters_are_refused(algo, field, value):
+    with pytest.raises(ValueError, match=f"{field}: must"):
+        make_config(algo, num_envs=16, **{field: value})
+
+
 def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
     args = [
         "train",

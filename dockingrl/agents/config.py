@@ -177,6 +177,9 @@ class OffPolicyConfig(TrainConfig):
     def validate(self) -> None:
         super().validate()
         name = type(self).__name__
+        _check_ranges(self, positive=("lr",), unit=("tau", "gamma"), non_negative=("start_steps",))
+        if self.frames_per_batch < self.num_envs:
+            raise ValueError(f"{name}.frames_per_batch: must be >= num_envs")
         if self.n_steps < 1:
             raise ValueError(f"{name}.n_steps: must be >= 1 (got {self.n_steps})")
         if self.n_steps > self.frames_per_batch // self.num_envs:
@@ -192,8 +195,21 @@ class OffPolicyConfig(TrainConfig):
             )
         if self.updates_per_step <= 0:
             raise ValueError(f"{name}.updates_per_step: must be > 0")
-        if self.frames_per_batch < self.num_envs:
-            raise ValueError(f"{name}.frames_per_batch: must be >= num_envs")
+
+
+def _check_ranges(cfg, positive=(), unit=(), fraction=(), non_negative=()) -> None:
+    """``positive`` fields > 0, ``unit`` fields in (0, 1], ``fraction`` fields in [0, 1],
+    ``non_negative`` ones >= 0."""
+    for names, ok, text in (
+        (positive, lambda v: v > 0, "must be > 0"),
+        (unit, lambda v: 0 < v <= 1, "must lie in (0, 1]"),
+        (fraction, lambda v: 0 <= v <= 1, "must lie in [0, 1]"),
+        (non_negative, lambda v: v >= 0, "must be >= 0"),
+    ):
+        for field_name in names:
+            value = getattr(cfg, field_name)
+            if not ok(value):
+                raise ValueError(f"{type(cfg).__name__}.{field_name}: {text} (got {value!r})")
 
 
 @dataclass
@@ -232,6 +248,9 @@ class TD3Config(OffPolicyConfig):
 
     def validate(self) -> None:
         super().validate()
+        _check_ranges(
+            self, non_negative=("target_policy_noise", "target_noise_clip", "exploration_sigma")
+        )
         if self.policy_delay < 1:
             raise ValueError(f"TD3Config.policy_delay: must be >= 1 (got {self.policy_delay})")
 
@@ -281,6 +300,13 @@ class PPOConfig(TrainConfig):
 
     def validate(self) -> None:
         super().validate()
+        _check_ranges(
+            self,
+            positive=("lr", "clip", "max_grad_norm"),
+            unit=("gamma",),
+            fraction=("gae_lambda",),
+            non_negative=("entropy_coef", "value_coef"),
+        )
         frames = self.steps_per_env * self.num_envs
         if self.steps_per_env < 2:
             raise ValueError("PPOConfig.steps_per_env: must be >= 2")

@@ -412,7 +412,7 @@ class EKFTransform(Transform):
         """``(mean, cov)`` with the envs where ``fresh`` (shape ``mean.shape[:-1]``) started
         over from :meth:`initial_estimate` of their ``observation``: a new episode's first
         readings. The transform's reset, :func:`dockingrl.filter_learning.run_filter` and
-        :class:`dockingrl.OnboardPolicy` start episodes through it."""
+        :class:`dockingrl.onboard.OnboardStep` start episodes through it."""
         init_mean, init_cov = self.initial_estimate(observation, current)
         fresh = fresh.unsqueeze(-1)
         return torch.where(fresh, init_mean, mean), torch.where(fresh.unsqueeze(-1), init_cov, cov)
