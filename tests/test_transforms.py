@@ -133,23 +133,23 @@ def test_covariance_stays_symmetric_positive_definite_for_10000_steps():
     env = make_env("compound", 16, seed=2, config=config)
     gen = torch.Generator().manual_seed(0)
     td = env.reset()
-    min_rho, wraps, min_eig, asym = float("inf"), 0, float("inf"), 0.0
-    previous_heading = td["true_state"][:, 2]
+    low, width = torch.tensor([0.2, 0.05]), torch.tensor([0.4, 0.25])
+    covs, states, filtered = [], [td["true_state"]], []
     for _ in range(10_000):
-        low = torch.tensor([0.2, 0.05])
-        td["action"] = low + torch.rand(16, 2, generator=gen) * torch.tensor([0.4, 0.25])
+        td["action"] = low + torch.rand(16, 2, generator=gen) * width
         td = env.step(td)["next"]
-        cov = td["ekf_cov"]
-        min_eig = min(min_eig, torch.linalg.eigvalsh(cov.double()).min().item())
-        asym = max(asym, (cov - cov.transpose(-1, -2)).abs().max().item())
-        heading = td["true_state"][:, 2]
-        wraps += int(((heading - previous_heading).abs() > 3.0).sum())
-        previous_heading = heading
-        min_rho = min(min_rho, td["true_state"][:, :2].norm(dim=-1).min().item())
-        assert torch.isfinite(td["filtered_observation"]).all()
+        covs.append(td["ekf_cov"])
+        states.append(td["true_state"])
+        filtered.append(td["filtered_observation"])
     assert not td["done"].any()
+    cov, state = torch.stack(covs), torch.stack(states)
+    assert torch.isfinite(torch.stack(filtered)).all()
+    heading = state[..., 2]
+    wraps = int(((heading[1:] - heading[:-1]).abs() > 3.0).sum())
+    min_rho = float(state[1:, :, :2].norm(dim=-1).min())
     assert min_rho < 0.1 and wraps > 100
-    assert min_eig > 0 and asym == 0.0
+    assert float(torch.linalg.eigvalsh(cov.double()).min()) > 0
+    assert float((cov - cov.transpose(-1, -2)).abs().max()) == 0.0
 
 
 def test_partial_reset_leaves_other_filters_untouched():
