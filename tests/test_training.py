@@ -195,6 +195,13 @@ def test_impossible_configs_are_refused():
         ("ppo", "clip", 0.0),
         ("ppo", "entropy_coef", -0.01),
         ("sac", "frames_per_batch", 8),  # fewer than the 16 envs
+        ("sac", "n_steps", 0),
+        ("sac", "updates_per_step", 0.0),
+        ("td3", "policy_delay", 0),
+        ("ppo", "epochs", 0),
+        ("sac", "checkpoint_every", -1),
+        ("sac", "following_current_fraction", 1.5),
+        ("sac", "contact_speed_penalty", float("nan")),  # "must be finite"
     ],
 )
 def test_out_of_range_hyperparameters_are_refused(algo, field, value):

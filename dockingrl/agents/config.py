@@ -23,6 +23,23 @@ def _doc(text: str, **kwargs) -> Any:
     return field(metadata={"doc": text}, **kwargs)
 
 
+def _check_ranges(cfg, counts=(), positive=(), unit=(), fraction=(), non_negative=()) -> None:
+    """Refuse, naming the field and its value: ``counts`` below 1, ``positive`` fields not
+    > 0, ``unit`` fields outside (0, 1], ``fraction`` fields outside [0, 1], ``non_negative``
+    ones below 0."""
+    for names, ok, text in (
+        (counts, lambda v: v >= 1, "must be >= 1"),
+        (positive, lambda v: v > 0, "must be > 0"),
+        (unit, lambda v: 0 < v <= 1, "must lie in (0, 1]"),
+        (fraction, lambda v: 0 <= v <= 1, "must lie in [0, 1]"),
+        (non_negative, lambda v: v >= 0, "must be >= 0"),
+    ):
+        for field_name in names:
+            value = getattr(cfg, field_name)
+            if not ok(value):
+                raise ValueError(f"{type(cfg).__name__}.{field_name}: {text} (got {value!r})")
+
+
 @dataclass
 class TrainConfig:
     """What every training run shares."""
@@ -107,43 +124,38 @@ class TrainConfig:
         def fail(name, why):
             raise ValueError(f"{type(self).__name__}.{name}: {why} (got {getattr(self, name)!r})")
 
-        if self.scenario not in SCENARIOS:
-            fail("scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
-        if self.logger not in LOGGERS:
-            fail("logger", f"valid: {', '.join(LOGGERS)}")
-        for name in (
-            "total_steps",
-            "num_envs",
-            "eval_episodes",
-            "final_eval_episodes",
-            "threads",
-            "eval_every",
-        ):
-            if getattr(self, name) < 1:
-                fail(name, "must be >= 1")
-        if self.checkpoint_every < 0:
-            fail("checkpoint_every", "must be >= 0")
-        for name in (
-            "contact_speed_penalty",
-            "miss_penalty_floor",
-            "passed_station_penalty",
-            "time_budget_s",
-        ):
-            if getattr(self, name) < 0:
-                fail(name, "must be >= 0")
-        if not 0.0 <= self.following_current_fraction <= 1.0:
-            fail("following_current_fraction", "must lie in [0, 1]")
-        for name in ("range_noise_scale", "bearing_noise_scale", "contact_speed_target"):
-            if not getattr(self, name) > 0:
-                fail(name, "must be > 0")
-        if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
-            fail("filter_params", f"scenario {self.scenario!r} has no filter")
-        if not self.hidden or any(h < 1 for h in self.hidden):
-            fail("hidden", "needs positive layer sizes")
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not (value == value and abs(value) != float("inf")):
                 fail(f.name, "must be finite")
+        if self.scenario not in SCENARIOS:
+            fail("scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
+        if self.logger not in LOGGERS:
+            fail("logger", f"valid: {', '.join(LOGGERS)}")
+        _check_ranges(
+            self,
+            counts=(
+                "total_steps",
+                "num_envs",
+                "eval_episodes",
+                "final_eval_episodes",
+                "threads",
+                "eval_every",
+            ),
+            positive=("range_noise_scale", "bearing_noise_scale", "contact_speed_target"),
+            fraction=("following_current_fraction",),
+            non_negative=(
+                "checkpoint_every",
+                "contact_speed_penalty",
+                "miss_penalty_floor",
+                "passed_station_penalty",
+                "time_budget_s",
+            ),
+        )
+        if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
+            fail("filter_params", f"scenario {self.scenario!r} has no filter")
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            fail("hidden", "needs positive layer sizes")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -177,11 +189,15 @@ class OffPolicyConfig(TrainConfig):
     def validate(self) -> None:
         super().validate()
         name = type(self).__name__
-        _check_ranges(self, positive=("lr",), unit=("tau", "gamma"), non_negative=("start_steps",))
+        _check_ranges(
+            self,
+            counts=("n_steps",),
+            positive=("lr", "updates_per_step"),
+            unit=("tau", "gamma"),
+            non_negative=("start_steps",),
+        )
         if self.frames_per_batch < self.num_envs:
             raise ValueError(f"{name}.frames_per_batch: must be >= num_envs")
-        if self.n_steps < 1:
-            raise ValueError(f"{name}.n_steps: must be >= 1 (got {self.n_steps})")
         if self.n_steps > self.frames_per_batch // self.num_envs:
             raise ValueError(
                 f"{name}.n_steps: at most the steps per env of one collection, "
@@ -193,23 +209,6 @@ class OffPolicyConfig(TrainConfig):
                 f"{name}.buffer_size: must hold at least one batch "
                 f"({self.buffer_size} < {self.batch_size})"
             )
-        if self.updates_per_step <= 0:
-            raise ValueError(f"{name}.updates_per_step: must be > 0")
-
-
-def _check_ranges(cfg, positive=(), unit=(), fraction=(), non_negative=()) -> None:
-    """``positive`` fields > 0, ``unit`` fields in (0, 1], ``fraction`` fields in [0, 1],
-    ``non_negative`` ones >= 0."""
-    for names, ok, text in (
-        (positive, lambda v: v > 0, "must be > 0"),
-        (unit, lambda v: 0 < v <= 1, "must lie in (0, 1]"),
-        (fraction, lambda v: 0 <= v <= 1, "must lie in [0, 1]"),
-        (non_negative, lambda v: v >= 0, "must be >= 0"),
-    ):
-        for field_name in names:
-            value = getattr(cfg, field_name)
-            if not ok(value):
-                raise ValueError(f"{type(cfg).__name__}.{field_name}: {text} (got {value!r})")
 
 
 @dataclass
@@ -249,10 +248,10 @@ class TD3Config(OffPolicyConfig):
     def validate(self) -> None:
         super().validate()
         _check_ranges(
-            self, non_negative=("target_policy_noise", "target_noise_clip", "exploration_sigma")
+            self,
+            counts=("policy_delay",),
+            non_negative=("target_policy_noise", "target_noise_clip", "exploration_sigma"),
         )
-        if self.policy_delay < 1:
-            raise ValueError(f"TD3Config.policy_delay: must be >= 1 (got {self.policy_delay})")
 
 
 @dataclass
@@ -303,6 +302,7 @@ class PPOConfig(TrainConfig):
         _check_ranges(
             self,
             positive=("lr", "clip", "max_grad_norm"),
+            counts=("epochs",),
             unit=("gamma",),
             fraction=("gae_lambda",),
             non_negative=("entropy_coef", "value_coef"),
@@ -315,8 +315,6 @@ class PPOConfig(TrainConfig):
                 f"PPOConfig.minibatch_size: must be in [1, num_envs * steps_per_env = {frames}] "
                 f"(got {self.minibatch_size})"
             )
-        if self.epochs < 1:
-            raise ValueError("PPOConfig.epochs: must be >= 1")
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(
                 f"PPOConfig.lr_schedule: valid: {', '.join(LR_SCHEDULES)} "

@@ -13,6 +13,8 @@ episode rewards (``RewardSum`` placed before it) and the paper's metrics are unt
 
 from __future__ import annotations
 
+import math
+
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import Transform
@@ -130,9 +132,9 @@ class PassedStationEnd(Transform):
     """
 
     def __init__(self, penalty: float, entrance_x: float = 0.0) -> None:
-        if not penalty > 0 or penalty == float("inf"):
+        if not (math.isfinite(penalty) and penalty > 0):
             raise ValueError(f"penalty must be finite and > 0, got {penalty!r}")
-        if not abs(entrance_x) < float("inf"):
+        if not math.isfinite(entrance_x):
             raise ValueError(f"entrance_x must be finite, got {entrance_x!r}")
         super().__init__(
             in_keys=["reward", "true_state", "terminated"],
