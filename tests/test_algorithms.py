@@ -1,5 +1,6 @@
 """n-step transitions of the off-policy agents: sums, episode ends, the carry between
-collections, the bootstrap discount, checkpoints and a training run."""
+collections, the bootstrap discount, checkpoints and a training run; the critics' options
+(LayerNorm, privileged inputs)."""
 
 import pytest
 import torch
@@ -7,7 +8,14 @@ from tensordict import TensorDict
 from torchrl.modules import ValueOperator
 from torchrl.objectives.value import TD0Estimator
 
-from dockingrl.agents.algorithms import make_agent, n_step_transitions
+from dockingrl.agents.algorithms import (
+    PRIVILEGED_KEYS,
+    TRANSITION_KEYS,
+    make_agent,
+    n_step_transitions,
+    privileged_features,
+    transition_keys,
+)
 from dockingrl.agents.config import make_config
 from dockingrl.scenarios import make_env
 from dockingrl.training import train
@@ -229,3 +237,48 @@ def test_critic_layer_norm_normalises_each_hidden_layer_and_trains(algo):
     normed.learn(env.rollout(20, break_when_any_done=False), num_updates=2)
     after = normed.loss.qvalue_network_params.flatten_keys()
     assert all(not torch.equal(before[k], after[k]) for k in gains)
+
+
+def test_privileged_critic_reads_true_state_and_current_the_policy_does_not():
+    algo = "sac"
+    env = make_env("compound", 4, seed=0)
+    spec = env.action_spec[0]
+    cfg = make_config(
+        algo, "paper", hidden=(32, 16), privileged_critic=True, batch_size=16, buffer_size=1000
+    )
+    agent = make_agent(cfg, 12, spec, 30.0)
+    plain = make_agent(make_config(algo, "paper", hidden=(32, 16)), 12, spec, 30.0)
+    assert plain.loss.qvalue_network.in_keys == ["observation", "action"]
+    critic = agent.loss.qvalue_network
+    assert critic.in_keys == ["observation", "true_state", "ocean_current", "action"]
+    # the policy's input is unchanged: a saved actor runs on the compound observation alone
+    actor_keys = {k for m in agent.actor.modules() if hasattr(m, "in_keys") for k in m.in_keys}
+    assert "true_state" not in actor_keys and "ocean_current" not in actor_keys
+
+    # the features: x, y over max_dist, cos and sin of the heading, u, v, r, then the current
+    state = torch.tensor([[-15.0, 3.0, torch.pi / 2, 0.5, -0.1, 0.2]])
+    current = torch.tensor([[0.3, -0.2]])
+    expected = torch.tensor([[-0.5, 0.1, 0.0, 1.0, 0.5, -0.1, 0.2, 0.3, -0.2]])
+    torch.testing.assert_close(privileged_features(state, current, 30.0), expected)
+
+    # Q depends on the current although the observation and action stay the same
+    td = env.reset()
+    td["action"] = spec.rand((4,))
+    q = critic(td.clone())["state_action_value"]
+    td["ocean_current"] = -td["ocean_current"]
+    assert not torch.allclose(q, critic(td)["state_action_value"])
+
+    # the replay buffer keeps both steps' privileged entries and the update trains the critic
+    before = agent.loss.qvalue_network_params.clone()
+    agent.learn(env.rollout(20, break_when_any_done=False), num_updates=2)
+    stored = agent.replay_buffer.sample()
+    for key in (*PRIVILEGED_KEYS, *(("next", k) for k in PRIVILEGED_KEYS)):
+        assert key in stored.keys(include_nested=True)
+    after = agent.loss.qvalue_network_params
+    assert any(
+        not torch.equal(a, b)
+        for a, b in zip(before.values(True, True), after.values(True, True), strict=True)
+    )
+    # without the option nothing extra is stored
+    plain_cfg = make_config(algo, "paper", hidden=(32, 16), batch_size=16, buffer_size=1000)
+    assert transition_keys(plain_cfg) == TRANSITION_KEYS

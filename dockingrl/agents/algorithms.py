@@ -33,7 +33,14 @@ from torchrl.modules import (
 from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, TD3Loss
 from torchrl.objectives.value import GAE
 
-from dockingrl.agents.config import ACTIVATIONS, PPOConfig, SACConfig, TD3Config, TrainConfig
+from dockingrl.agents.config import (
+    ACTIVATIONS,
+    OffPolicyConfig,
+    PPOConfig,
+    SACConfig,
+    TD3Config,
+    TrainConfig,
+)
 
 #: what an off-policy replay buffer stores of each transition
 TRANSITION_KEYS = (
@@ -45,6 +52,18 @@ TRANSITION_KEYS = (
     ("next", "terminated"),
     ("next", "truncated"),
 )
+#: what a privileged critic (``privileged_critic``) reads besides the observation: simulator
+#: state, never the policy's input
+PRIVILEGED_KEYS = ("true_state", "ocean_current")
+PRIVILEGED_DIM = 9
+
+
+def transition_keys(cfg: TrainConfig) -> tuple:
+    """What the replay buffer of ``cfg`` stores of each transition: ``TRANSITION_KEYS``, and
+    ``PRIVILEGED_KEYS`` of both steps for a privileged critic."""
+    if not getattr(cfg, "privileged_critic", False):
+        return TRANSITION_KEYS
+    return TRANSITION_KEYS + PRIVILEGED_KEYS + tuple(("next", k) for k in PRIVILEGED_KEYS)
 
 
 def n_step_transitions(data: TensorDictBase, n_steps: int, gamma: float) -> TensorDictBase:
@@ -139,21 +158,66 @@ def mlp(
     return nn.Sequential(ObservationScale(scale), net)
 
 
-class _Critic(nn.Module):
-    """Q(o, a): the scaled observation and the action through one MLP."""
+def privileged_features(
+    true_state: torch.Tensor, ocean_current: torch.Tensor, max_dist: float
+) -> torch.Tensor:
+    """What a privileged critic reads besides the observation (``PRIVILEGED_DIM`` numbers):
+    the true ``x, y`` over ``max_dist``, the cosine and sine of the true heading, the true
+    ``u, v, r`` and the ocean current ``(oc_x, oc_y)`` (DS frame)."""
+    x, y, alpha, u, v, r = true_state.unbind(-1)
+    pose = torch.stack((x / max_dist, y / max_dist, alpha.cos(), alpha.sin(), u, v, r), dim=-1)
+    return torch.cat((pose, ocean_current), dim=-1)
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden, scale, layer_norm=False) -> None:
+
+class _Critic(nn.Module):
+    """Q(o, a): the scaled observation and the action through one MLP. With
+    ``privileged_max_dist`` (asymmetric actor-critic) it is Q(o, s, a): the
+    :func:`privileged_features` of the simulator's true state and current ``s`` sit between
+    observation and action."""
+
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        hidden,
+        scale,
+        layer_norm=False,
+        privileged_max_dist: float | None = None,
+    ) -> None:
         super().__init__()
+        self.privileged_max_dist = privileged_max_dist
+        extra = 0 if privileged_max_dist is None else PRIVILEGED_DIM
         self.net = mlp(
-            obs_dim + act_dim,
+            obs_dim + extra + act_dim,
             1,
             hidden,
-            torch.cat((scale, torch.ones(act_dim))),
+            torch.cat((scale, torch.ones(extra + act_dim))),
             layer_norm=layer_norm,
         )
 
-    def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.net(torch.cat((observation, action), dim=-1))
+    def forward(self, observation: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
+        *privileged, action = rest
+        if self.privileged_max_dist is not None:
+            privileged = [privileged_features(*privileged, self.privileged_max_dist)]
+        return self.net(torch.cat((observation, *privileged, action), dim=-1))
+
+
+def make_critic(cfg: OffPolicyConfig, obs_dim: int, act_dim: int, scale, max_dist: float):
+    """The Q-network of SAC / TD3 as a ``ValueOperator`` (``state_action_value``): reads
+    ``observation`` and ``action``, plus ``PRIVILEGED_KEYS`` with SAC's
+    ``privileged_critic``."""
+    privileged = getattr(cfg, "privileged_critic", False)
+    return ValueOperator(
+        _Critic(
+            obs_dim,
+            act_dim,
+            cfg.hidden,
+            scale,
+            cfg.critic_layer_norm,
+            privileged_max_dist=max_dist if privileged else None,
+        ),
+        in_keys=["observation", *(PRIVILEGED_KEYS if privileged else ()), "action"],
+    )
 
 
 def stochastic_actor(
@@ -244,7 +308,8 @@ class Agent:
         losses (``losses/...``)."""
         if self.config.algo == "ppo":
             return self._learn_ppo(data, progress)
-        self.replay_buffer.extend(self._transitions(data.select(*TRANSITION_KEYS)).reshape(-1))
+        keys = transition_keys(self.config)
+        self.replay_buffer.extend(self._transitions(data.select(*keys)).reshape(-1))
         logs: dict[str, list[float]] = {}
         for _ in range(num_updates):
             for key, value in self._off_policy_update().items():
@@ -398,9 +463,9 @@ def make_agent(
     act_dim = action_spec.shape[-1]
     actor = build_actor(cfg, obs_dim, action_spec, max_dist).to(device)
     if isinstance(cfg, SACConfig):
-        return _make_sac(cfg, actor, obs_dim, act_dim, scale, device)
+        return _make_sac(cfg, actor, obs_dim, act_dim, scale, max_dist, device)
     if isinstance(cfg, TD3Config):
-        return _make_td3(cfg, actor, action_spec, obs_dim, act_dim, scale, device)
+        return _make_td3(cfg, actor, action_spec, obs_dim, act_dim, scale, max_dist, device)
     if isinstance(cfg, PPOConfig):
         return _make_ppo(cfg, actor, obs_dim, scale, device)
     raise TypeError(f"no agent for {type(cfg).__name__}")
@@ -414,11 +479,8 @@ def _replay_buffer(cfg, device) -> TensorDictReplayBuffer:
     )
 
 
-def _make_sac(cfg: SACConfig, actor, obs_dim, act_dim, scale, device) -> Agent:
-    qvalue = ValueOperator(
-        _Critic(obs_dim, act_dim, cfg.hidden, scale, cfg.critic_layer_norm),
-        in_keys=["observation", "action"],
-    ).to(device)
+def _make_sac(cfg: SACConfig, actor, obs_dim, act_dim, scale, max_dist, device) -> Agent:
+    qvalue = make_critic(cfg, obs_dim, act_dim, scale, max_dist).to(device)
     loss = SACLoss(
         actor_network=actor,
         qvalue_network=qvalue,
@@ -446,11 +508,10 @@ def _make_sac(cfg: SACConfig, actor, obs_dim, act_dim, scale, device) -> Agent:
     )
 
 
-def _make_td3(cfg: TD3Config, actor, action_spec, obs_dim, act_dim, scale, device) -> Agent:
-    qvalue = ValueOperator(
-        _Critic(obs_dim, act_dim, cfg.hidden, scale, cfg.critic_layer_norm),
-        in_keys=["observation", "action"],
-    ).to(device)
+def _make_td3(
+    cfg: TD3Config, actor, action_spec, obs_dim, act_dim, scale, max_dist, device
+) -> Agent:
+    qvalue = make_critic(cfg, obs_dim, act_dim, scale, max_dist).to(device)
     exploration = TensorDictSequential(
         actor,
         AdditiveGaussianModule(

@@ -226,6 +226,12 @@ class SACConfig(OffPolicyConfig):
         "= -3.71 here",
         default=-2.0,
     )
+    privileged_critic: bool = _doc(
+        "the critics also read the simulator's true state and ocean current (asymmetric "
+        "actor-critic, training only: the policy's input is unchanged; SAC only: TD3Loss "
+        "gives its target critics the actor's inputs alone; not in the paper)",
+        default=False,
+    )
 
 
 @dataclass
