@@ -469,3 +469,26 @@ def test_field_value_overrides_are_typed_and_checked():
     for bad in ("num_envs=2.5", "keep_best=maybe", "alpha=0.1", "gamma", "hidden=3x"):
         with pytest.raises(ValueError, match=bad.partition("=")[0]):
             parse_overrides("ppo", [bad])
+
+
+def test_privileged_critic_run_checkpoints_its_buffer_and_saves_an_observation_only_policy(
+    tmp_path,
+):
+    cfg = tiny_config("sac", "compound", tmp_path, privileged_critic=True, final_eval_episodes=4)
+    train(cfg, progress=False)
+    run = tmp_path / "sac_compound"
+    # a resumed run reloads the replay buffer with the privileged entries of both steps
+    saved = json.loads((run / "config.json").read_text())
+    saved.pop("algo")
+    saved["hidden"] = tuple(saved["hidden"])
+    trainer = Trainer(make_config("sac", "paper", **saved), run, progress=False)
+    assert trainer.load_checkpoint()
+    stored = trainer.agent.replay_buffer.sample()
+    for key in ("true_state", "ocean_current", ("next", "true_state"), ("next", "ocean_current")):
+        assert key in stored.keys(include_nested=True)
+    # the saved policy reads the compound observation and nothing else
+    policy, _ = load_policy(run / "policy.pt")
+    from dockingrl.scenarios import make_env
+
+    td = make_env("compound", 3, seed=1).reset().select("observation")
+    assert policy(td)["action"].shape == (3, 2)
