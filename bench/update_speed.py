@@ -246,6 +246,39 @@ def paired_rates(ours, plain, seconds: float, rounds: int) -> tuple[float, float
     )
 
 
+def write_paths(algo: str, seconds: float, rounds: int) -> None:
+    """The agents' modules (``algorithms._WritesTensors``: outputs set directly) against the
+    same update through ``TensorDictModule``'s own write path (``TensorDict.from_any`` on each
+    output), in alternating rounds."""
+    from tensordict.nn import TensorDictModule
+
+    from dockingrl.agents import algorithms
+
+    writes = {
+        "direct": algorithms._WritesTensors.__dict__["_write_to_tensordict"],
+        "from_any": TensorDictModule._write_to_tensordict,
+    }
+
+    def variant(name):
+        algorithms._WritesTensors._write_to_tensordict = writes[name]
+        update = torchrl_update(algo)
+
+        def step():
+            algorithms._WritesTensors._write_to_tensordict = writes[name]
+            update()
+
+        return step
+
+    try:
+        fast, slow, ratio = paired_rates(variant("direct"), variant("from_any"), seconds, rounds)
+    finally:
+        algorithms._WritesTensors._write_to_tensordict = writes["direct"]
+    print(
+        f"{algo}: outputs set directly {fast:,.1f} updates/s, through from_any {slow:,.1f}; "
+        f"time ratio direct / from_any {ratio:.3f} (median over {rounds} alternating rounds)"
+    )
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="per variant, all rounds")
@@ -253,12 +286,21 @@ def main(argv=None) -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--algos", nargs="+", default=["sac", "td3", "ppo"])
     parser.add_argument("--device", default="cpu", help="torch device of networks and data")
+    parser.add_argument(
+        "--write-paths",
+        action="store_true",
+        help="instead: the agents' direct output writes against TensorDictModule's from_any path",
+    )
     args = parser.parse_args(argv)
     global DEVICE
     DEVICE = torch.device(args.device)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     print(f"machine: {describe_machine(DEVICE)}, updates on {DEVICE}")
+    if args.write_paths:
+        for algo in args.algos:
+            write_paths(algo, args.seconds, args.rounds)
+        return
     print(
         "| algorithm | TorchRL updates/s | TorchRL, compile_update | plain PyTorch updates/s | "
         "plain, torch.compile | TorchRL time / plain time | compiled TorchRL / plain | "

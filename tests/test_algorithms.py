@@ -4,13 +4,15 @@ collections, the bootstrap discount, checkpoints and a training run; the critics
 
 import pytest
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
 from torchrl.modules import ValueOperator
 from torchrl.objectives.value import TD0Estimator
 
 from dockingrl.agents.algorithms import (
     PRIVILEGED_KEYS,
     TRANSITION_KEYS,
+    _WritesTensors,
     make_agent,
     n_step_transitions,
     privileged_features,
@@ -21,6 +23,7 @@ from dockingrl.scenarios import make_env
 from dockingrl.training import train
 
 GAMMA = 0.9
+_stock_write = TensorDictModule._write_to_tensordict
 
 
 def trajectories(envs: int, steps: int, seed: int = 0) -> TensorDict:
@@ -282,3 +285,48 @@ def test_privileged_critic_reads_true_state_and_current_the_policy_does_not():
     # without the option nothing extra is stored
     plain_cfg = make_config(algo, "paper", hidden=(32, 16), batch_size=16, buffer_size=1000)
     assert transition_keys(plain_cfg) == TRANSITION_KEYS
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_agents_modules_write_tensor_outputs_directly_with_torchrls_results(algo, monkeypatch):
+    """The actor and critic modules set their tensor outputs without ``TensorDict.from_any``
+    (see ``algorithms._WritesTensors``) and compute exactly what ``TensorDictModule`` does."""
+    env = make_env("compound", 4, seed=0)
+    spec = env.action_spec[0]
+    sizes = (
+        {"num_envs": 4, "steps_per_env": 8, "minibatch_size": 16}
+        if algo == "ppo"
+        else {"batch_size": 16, "buffer_size": 1000}
+    )
+    cfg = make_config(algo, "paper", hidden=(32, 16), **sizes)
+    torch.manual_seed(0)
+    with torch.no_grad():  # PPO learns from its own actor's actions and log-probabilities
+        data = env.rollout(8, make_agent(cfg, 12, spec, 30.0).actor, break_when_any_done=False)
+
+    def run(patch: bool):
+        torch.manual_seed(0)
+        agent = make_agent(cfg, 12, spec, 30.0)
+        if patch:  # the stock TensorDictModule path, which goes through from_any
+            monkeypatch.setattr(_WritesTensors, "_write_to_tensordict", _stock_write)
+        torch.manual_seed(1)
+        agent.learn(data.clone(), num_updates=2)
+        monkeypatch.undo()
+        return [p.detach().clone() for p in agent.loss.parameters()]
+
+    calls = []
+    original = TensorDictBase.from_any.__func__
+
+    def counting(cls, obj, **kwargs):
+        calls.append(type(obj))
+        return original(cls, obj, **kwargs)
+
+    monkeypatch.setattr(TensorDictBase, "from_any", classmethod(counting))
+    stock = run(patch=True)
+    stock_calls = len(calls)
+    monkeypatch.setattr(TensorDictBase, "from_any", classmethod(counting))
+    calls.clear()
+    direct = run(patch=False)
+    assert stock_calls > 0 and calls == []
+    assert len(stock) == len(direct)
+    for a, b in zip(stock, direct, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
