@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from pathlib import Path
 
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     ax.set_title(args.title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    command = "python " + " ".join(["scripts/compare_curves.py", *(argv or sys.argv[1:])])
+    command = shlex.join(["python", "scripts/compare_curves.py", *(argv or sys.argv[1:])])
     fig.text(0.01, 0.005, f"{command}  |  runs on: {machine}", fontsize=6, wrap=True)
     fig.tight_layout(rect=(0, 0.09, 1, 1))
     prefix = Path(args.out)

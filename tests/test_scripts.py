@@ -3,6 +3,7 @@
 import csv
 import importlib.util
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -45,13 +46,14 @@ def test_compare_curves_writes_the_figure_and_the_table(tmp_path):
     a = fake_run(tmp_path / "a", [0.0, 20.0, 45.0])
     b = fake_run(tmp_path / "b", [5.0, 10.0])
     out = tmp_path / "cmp" / "success"
-    argv = [str(a), str(b), "--out", str(out), "--labels", "A", "B"]
+    argv = [str(a), str(b), "--out", str(out), "--labels", "A", "B", "--title", "a, b: (x)"]
     assert load_script("compare_curves.py").main(argv) == 0
     assert out.with_suffix(".png").stat().st_size > 1000
     table = json.loads(out.with_suffix(".json").read_text())
     assert table["runs"]["A"]["points"] == [[10000, 0.0], [20000, 20.0], [30000, 45.0]]
     assert table["runs"]["B"]["points"] == [[10000, 5.0], [20000, 10.0]]
-    assert "compare_curves.py" in table["command"]
+    # the recorded command reruns as given: labels and titles with spaces stay quoted
+    assert shlex.split(table["command"]) == ["python", "scripts/compare_curves.py", *argv]
     assert table["runs"]["A"]["frames"] == 30000
 
 
