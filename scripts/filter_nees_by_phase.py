@@ -12,6 +12,7 @@ band of steps since the episode's start: the mean NEES (5 when consistent) and t
 from __future__ import annotations
 
 import argparse
+import shlex
 import time
 
 import torch
@@ -61,8 +62,8 @@ def main() -> None:
             print(f"{spec} steps {low}-{high}: NEES {rows[-1]['nees_mean']:.2f}")
         report["filters"][spec] = rows
     report["wall_clock_s"] = time.perf_counter() - start
-    report["command"] = "python scripts/filter_nees_by_phase.py " + " ".join(
-        [*args.filters, "--out", args.out]
+    report["command"] = shlex.join(
+        ["python", "scripts/filter_nees_by_phase.py", *args.filters, "--out", args.out]
     )
     write_json(args.out, report)
 
