@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import sys
 import time
 
 import torch
@@ -62,9 +63,8 @@ def main() -> None:
             print(f"{spec} steps {low}-{high}: NEES {rows[-1]['nees_mean']:.2f}")
         report["filters"][spec] = rows
     report["wall_clock_s"] = time.perf_counter() - start
-    report["command"] = shlex.join(
-        ["python", "scripts/filter_nees_by_phase.py", *args.filters, "--out", args.out]
-    )
+    # every argument as given, so that --seed and --threads rerun too
+    report["command"] = shlex.join(["python", "scripts/filter_nees_by_phase.py", *sys.argv[1:]])
     write_json(args.out, report)
 
 

@@ -69,9 +69,11 @@ def test_compare_curves_refuses_a_run_without_the_curve(tmp_path, capsys):
 
 def test_filter_nees_by_phase_reports_every_band(tmp_path):
     out, spec = tmp_path / "nees.json", "hand"
-    done = run_script("filter_nees_by_phase.py", spec, "--out", str(out))
+    argv = [spec, "--out", str(out), "--seed", "1000"]
+    done = run_script("filter_nees_by_phase.py", *argv)
     assert done.returncode == 0, done.stderr
     report = json.loads(out.read_text())
+    assert shlex.split(report["command"]) == ["python", "scripts/filter_nees_by_phase.py", *argv]
     rows = report["filters"][spec]
     assert [r["steps"] for r in rows] == report["bands"]
     assert all(r["samples"] > 0 and r["nees_mean"] > 0 for r in rows)
