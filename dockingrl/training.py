@@ -461,8 +461,9 @@ def plot_run(run_dir: str | Path) -> Path | None:
     )
 
 
-#: what a resumed run may change: where and how fast it runs, not what it learns
-RESUME_OVERRIDES = ("threads", "device")
+#: what a resumed run may change: where and how fast it runs, not what it learns, and how long
+#: it goes on (``total_steps``: a finished run can be continued to a larger total)
+RESUME_OVERRIDES = ("threads", "device", "total_steps")
 
 
 def train(
@@ -483,7 +484,11 @@ def train(
     Args:
         resume: a run folder whose latest checkpoint to continue from, to the same
             ``total_steps`` (its ``config.json`` is used; ``cfg`` is ignored).
-        overrides: with ``resume``, new values of :data:`RESUME_OVERRIDES` (threads, device).
+        overrides: with ``resume``, new values of :data:`RESUME_OVERRIDES` (threads, device,
+            total_steps). A new ``total_steps`` continues the run, finished or not, to that
+            total (not below its checkpoint); ``config.json`` records it. With ``keep_best``
+            the final policy is the best periodic actor of the whole run. PPO's linear
+            learning-rate schedule is tied to the total, so that run's total cannot change.
     """
     if resume is not None:
         run_dir = Path(resume)
@@ -502,6 +507,13 @@ def train(
                 f"a resumed run keeps its config; only {', '.join(RESUME_OVERRIDES)} may change, "
                 f"not {', '.join(changed)}"
             )
+        if overrides.get("total_steps") == saved["total_steps"]:
+            del overrides["total_steps"]
+        if "total_steps" in overrides and saved.get("lr_schedule", "constant") != "constant":
+            raise ValueError(
+                f"the run's lr_schedule {saved['lr_schedule']!r} anneals to its total_steps "
+                f"({saved['total_steps']}), which therefore cannot change"
+            )
         cfg = cls(**{**saved, **overrides})
         cfg.validate()
     elif overrides:
@@ -514,8 +526,16 @@ def train(
         run_dir.mkdir(parents=True, exist_ok=True)
         write_json(run_dir / "config.json", cfg.to_dict())
     trainer = Trainer(cfg, run_dir, progress=progress, command=command)
-    if resume is not None and not trainer.load_checkpoint():
-        raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints to resume from")
+    if resume is not None:
+        if not trainer.load_checkpoint():
+            raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints to resume from")
+        if cfg.total_steps < trainer.frames:
+            raise ValueError(
+                f"total_steps {cfg.total_steps} is below the checkpoint's {trainer.frames} "
+                "env steps"
+            )
+        if "total_steps" in overrides:
+            write_json(run_dir / "config.json", cfg.to_dict())
     logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
     if trainer.frames < cfg.total_steps and not trainer.out_of_time:
         trainer.run(logger)

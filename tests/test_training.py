@@ -119,6 +119,39 @@ def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
     assert steps == sorted(steps) and len(set(steps)) == len(steps), "no step logged twice"
 
 
+def test_a_finished_run_continues_to_a_larger_total(tmp_path):
+    """``--resume RUN --total-steps N`` continues a finished run from its last checkpoint: the
+    replay buffer and counters carry on, config.json records the new total, and with
+    ``keep_best`` the final policy is the best periodic actor of the whole run."""
+    cfg = tiny_config("sac", "compound", tmp_path, keep_best=True)
+    first = train(cfg, progress=False)
+    run = tmp_path / "sac_compound"
+    assert first["summary"]["frames"] == cfg.total_steps
+    longer = 2 * cfg.total_steps
+    result = train(None, resume=run, progress=False, overrides={"total_steps": longer})
+    assert result["summary"]["frames"] == longer
+    assert result["summary"]["updates"] > first["summary"]["updates"]
+    assert json.loads((run / "config.json").read_text())["total_steps"] == longer
+    evals = read_curves(run)["eval/success_rate"]
+    assert [s for s, _ in evals] == list(range(200, longer + 1, 200)), "no evaluation twice"
+    best = max(evals, key=lambda e: e[1])
+    assert result["summary"]["policy_periodic_success_rate"] == best[1]
+    trainer = Trainer(cfg, run, progress=False)
+    assert trainer.load_checkpoint() and len(trainer.agent.replay_buffer) == longer
+    # a total below the checkpoint, and a new total for an annealed learning rate, are refused
+    with pytest.raises(ValueError, match="below the checkpoint"):
+        train(None, resume=run, progress=False, overrides={"total_steps": cfg.total_steps})
+    ppo = tiny_config("ppo", "noise", tmp_path, lr_schedule="linear")
+    train(ppo, progress=False)
+    with pytest.raises(ValueError, match="lr_schedule 'linear'"):
+        train(
+            None,
+            resume=tmp_path / "ppo_noise",
+            progress=False,
+            overrides={"total_steps": 2 * ppo.total_steps},
+        )
+
+
 def test_checkpoint_round_trip_restores_networks_and_buffer(tmp_path):
     cfg = tiny_config("sac", "noise", tmp_path)
     train(cfg, progress=False)
@@ -271,12 +304,12 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
     assert info["config"]["observe_current"] is True
     with pytest.raises(SystemExit):
         cli_main(["train", "--algo", "ppo", "--start-steps", "5"])  # a SAC/TD3 option
-    # a resumed run keeps its config: only where and how fast it runs may change
+    # a resumed run keeps its config: only where and how fast it runs (and how long) may change
     run = str(tmp_path / "cli")
     for extra, message in (
         (["--seed", "3"], "not seed"),
         (["--algo", "sac"], "not algo"),
-        (["--total-steps", "512", "--threads", "1"], "not total_steps"),
+        (["--lr", "1e-3", "--threads", "1"], "not lr"),
     ):
         with pytest.raises(SystemExit, match=message):
             cli_main(["train", "--resume", run, *extra])
