@@ -6,6 +6,9 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import signal
+import sys
+import threading
 import time
 from dataclasses import fields
 from pathlib import Path
@@ -24,6 +27,50 @@ from dockingrl.scenarios import make_env
 from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
+
+
+class TrainingInterrupted(Exception):
+    """A run stopped by SIGTERM or SIGINT after checkpointing its last whole batch: nothing
+    trained is lost, and ``--resume`` continues it."""
+
+    def __init__(self, signum: int, frames: int, run_dir: Path) -> None:
+        self.signum, self.frames, self.run_dir = signum, frames, run_dir
+        super().__init__(
+            f"stopped by {signal.Signals(signum).name} at {frames} env steps, checkpoint "
+            f"written; continue with: dockingrl train --resume {run_dir}"
+        )
+
+
+class _StopRequests:
+    """While training (main thread only), SIGTERM and SIGINT ask the loop to stop after the
+    current batch and checkpoint; a second signal interrupts at once (``KeyboardInterrupt``)."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict = {}
+
+    def _handler(self, signum, frame) -> None:
+        if self.signum is not None:
+            raise KeyboardInterrupt(f"second {signal.Signals(signum).name}: stopping now")
+        self.signum = signum
+        print(
+            f"\n{signal.Signals(signum).name}: stopping after this batch and its checkpoint "
+            "(again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def install(self) -> None:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handler)
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
 
 
 class RunLogger:
@@ -317,7 +364,9 @@ class Trainer:
                 dynamic_ncols=True,
             )
         started = time.perf_counter() - self.elapsed
+        stops = _StopRequests()
         try:
+            stops.install()
             for data in collector:
                 if self.frames >= cfg.total_steps:
                     break
@@ -353,13 +402,20 @@ class Trainer:
                         sps=f"{metrics['time/steps_per_s']:.0f}",
                         success=f"{self.last_success:.0f}%",
                     )
+                saved = False
                 if self.next_checkpoint is not None and self.frames >= self.next_checkpoint:
                     while self.next_checkpoint <= self.frames:
                         self.next_checkpoint += cfg.checkpoint_every
                     self.save_checkpoint()
+                    saved = True
+                if stops.signum is not None and self.frames < cfg.total_steps:
+                    if not saved:
+                        self.save_checkpoint()
+                    raise TrainingInterrupted(stops.signum, self.frames, self.run_dir)
                 if self.out_of_time:
                     break
         finally:
+            stops.restore()
             collector.shutdown()
             if bar is not None:
                 bar.close()
@@ -538,10 +594,22 @@ def train(
             write_json(run_dir / "config.json", cfg.to_dict())
     logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
     if trainer.frames < cfg.total_steps and not trainer.out_of_time:
-        trainer.run(logger)
+        try:
+            trainer.run(logger)
+        except TrainingInterrupted:
+            logger.finish({"interrupted_at_frames": trainer.frames})
+            raise
     result = trainer.finish(logger)
     result["run_dir"] = str(run_dir)
     return result
 
 
-__all__ = ["RESUME_OVERRIDES", "RunLogger", "Trainer", "plot_run", "read_curves", "train"]
+__all__ = [
+    "RESUME_OVERRIDES",
+    "RunLogger",
+    "Trainer",
+    "TrainingInterrupted",
+    "plot_run",
+    "read_curves",
+    "train",
+]

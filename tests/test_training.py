@@ -119,6 +119,46 @@ def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
     assert steps == sorted(steps) and len(set(steps)) == len(steps), "no step logged twice"
 
 
+def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(tmp_path, monkeypatch):
+    """SIGTERM (a scheduler's pre-emption, a session's end) stops the loop after the current
+    batch with a checkpoint of it, even between two checkpoint intervals; the signal handlers
+    are put back, and ``--resume`` completes the run."""
+    import os
+    import signal
+
+    from dockingrl.training import TrainingInterrupted
+
+    cfg = tiny_config("sac", "compound", tmp_path, checkpoint_every=0)
+    original, batches = Trainer._train_on, []
+
+    def train_then_signal(self, data):
+        batches.append(data.numel())
+        if len(batches) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return original(self, data)
+
+    monkeypatch.setattr(Trainer, "_train_on", train_then_signal)
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(TrainingInterrupted, match="SIGTERM at 200 env steps") as stopped:
+        train(cfg, progress=False)
+    assert stopped.value.frames == sum(batches) == 200 < cfg.total_steps
+    assert signal.getsignal(signal.SIGTERM) is before
+    run = tmp_path / "sac_compound"
+    assert json.loads((run / "checkpoints" / "latest.json").read_text())["frames"] == 200
+    assert not (run / "policy.pt").exists()
+    monkeypatch.setattr(Trainer, "_train_on", original)
+    result = train(None, resume=run, progress=False)
+    assert result["summary"]["frames"] == cfg.total_steps
+    assert (run / "policy.pt").exists()
+    # the command line reports it and exits with 128 + the signal's number
+
+    def interrupted(*args, **kwargs):
+        raise TrainingInterrupted(signal.SIGTERM, 200, run)
+
+    monkeypatch.setattr("dockingrl.training.train", interrupted)
+    assert cli_main(["train", "--algo", "sac"]) == 128 + signal.SIGTERM
+
+
 def test_a_finished_run_continues_to_a_larger_total(tmp_path):
     """``--resume RUN --total-steps N`` continues a finished run from its last checkpoint: the
     replay buffer and counters carry on, config.json records the new total, and with
