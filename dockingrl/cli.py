@@ -32,7 +32,7 @@ _ARGV: list[str] = []
 
 def command_line() -> str:
     """The command being run, as a user would type it."""
-    return "dockingrl " + " ".join(shlex.quote(a) for a in _ARGV)
+    return shlex.join(["dockingrl", *_ARGV])
 
 
 def footer_text(extra: str = "", device: str | None = None) -> str:
