@@ -402,15 +402,13 @@ class Trainer:
                         sps=f"{metrics['time/steps_per_s']:.0f}",
                         success=f"{self.last_success:.0f}%",
                     )
-                saved = False
-                if self.next_checkpoint is not None and self.frames >= self.next_checkpoint:
-                    while self.next_checkpoint <= self.frames:
-                        self.next_checkpoint += cfg.checkpoint_every
+                due = self.next_checkpoint is not None and self.frames >= self.next_checkpoint
+                while due and self.next_checkpoint <= self.frames:
+                    self.next_checkpoint += cfg.checkpoint_every
+                stopping = stops.signum is not None and self.frames < cfg.total_steps
+                if due or stopping:
                     self.save_checkpoint()
-                    saved = True
-                if stops.signum is not None and self.frames < cfg.total_steps:
-                    if not saved:
-                        self.save_checkpoint()
+                if stopping:
                     raise TrainingInterrupted(stops.signum, self.frames, self.run_dir)
                 if self.out_of_time:
                     break

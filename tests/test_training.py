@@ -120,7 +120,7 @@ def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
 
 
 def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(tmp_path, monkeypatch):
-    """SIGTERM (a scheduler's pre-emption, a session's end) stops the loop after the current
+    """SIGTERM (a batch scheduler's pre-emption or time limit) stops the loop after the current
     batch with a checkpoint of it, even between two checkpoint intervals; the signal handlers
     are put back, and ``--resume`` completes the run."""
     import os
