@@ -1,14 +1,15 @@
 """n-step transitions of the off-policy agents: sums, episode ends, the carry between
 collections, the bootstrap discount, checkpoints and a training run; the critics' options
-(LayerNorm, privileged inputs)."""
+(LayerNorm, privileged inputs); the actors' tanh-Normal against TorchRL's."""
 
 import pytest
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
-from torchrl.modules import ValueOperator
+from torchrl.modules import TanhNormal, ValueOperator
 from torchrl.objectives.value import TD0Estimator
 
+from dockingrl.agents import algorithms
 from dockingrl.agents.algorithms import (
     PRIVILEGED_KEYS,
     TRANSITION_KEYS,
@@ -19,6 +20,7 @@ from dockingrl.agents.algorithms import (
     transition_keys,
 )
 from dockingrl.agents.config import make_config
+from dockingrl.agents.distributions import BoundedTanhNormal
 from dockingrl.scenarios import make_env
 from dockingrl.training import train
 
@@ -329,4 +331,87 @@ def test_agents_modules_write_tensor_outputs_directly_with_torchrls_results(algo
     assert stock_calls > 0 and calls == []
     assert len(stock) == len(direct)
     for a, b in zip(stock, direct, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def _tanh_normal_outputs(cls, method: str):
+    """One method of a tanh-Normal on fixed parameters (some of them saturating) and the
+    gradients of its outputs' sum with respect to loc and scale."""
+    g = torch.Generator().manual_seed(0)
+    loc = (3 * torch.randn(256, 2, generator=g)).requires_grad_()
+    scale = (torch.rand(256, 2, generator=g) + 1e-3).requires_grad_()
+    low, high = torch.tensor([-0.4, -0.3]), torch.tensor([0.8, 0.3])
+    dist = cls(loc, scale, low=low, high=high)
+    torch.manual_seed(3)
+    if method == "log_prob":
+        action = low + (high - low) * torch.rand(256, 2, generator=g)
+        action[:8] = high  # on the bounds: the clamped atanh
+        out = (dist.log_prob(action),)
+    elif method == "deterministic_sample":
+        out = (dist.deterministic_sample,)
+    else:
+        out = getattr(dist, method)((3,))
+        out = out if isinstance(out, tuple) else (out,)
+    differentiable = [o for o in out if o.requires_grad]
+    grads = ()
+    if differentiable:  # zero where an output does not depend on the parameter
+        total = sum(o.sum() for o in differentiable)
+        grads = torch.autograd.grad(total, (loc, scale), allow_unused=True)
+        grads = tuple(torch.zeros(()) if g is None else g for g in grads)
+    return out, grads
+
+
+@pytest.mark.parametrize(
+    "method",
+    [
+        "rsample_and_log_prob",
+        "sample_and_log_prob",
+        "rsample",
+        "sample",
+        "log_prob",
+        "deterministic_sample",
+    ],
+)
+def test_bounded_tanh_normal_is_torchrls_tanh_normal_to_the_last_bit(method):
+    """Same random state, same samples, log-probabilities and gradients as TorchRL's
+    ``TanhNormal`` (``tanh_loc=False``, safe tanh), exactly."""
+    ours, ours_grads = _tanh_normal_outputs(BoundedTanhNormal, method)
+    theirs, their_grads = _tanh_normal_outputs(TanhNormal, method)
+    assert len(ours) == len(theirs) and len(ours_grads) == len(their_grads)
+    for a, b in zip((*ours, *ours_grads), (*theirs, *their_grads), strict=True):
+        assert a.shape == b.shape
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    low, high = torch.tensor([-0.4, -0.3]), torch.tensor([0.8, 0.3])
+    if method != "log_prob":
+        assert ((ours[0] >= low) & (ours[0] <= high)).all()
+
+
+@pytest.mark.parametrize("algo", ["sac", "ppo"])
+def test_agents_learn_the_same_with_torchrls_tanh_normal(algo, monkeypatch):
+    """Swapping the actors' distribution for TorchRL's ``TanhNormal`` changes no parameter of
+    a few updates, to the last bit."""
+    env = make_env("compound", 4, seed=0)
+    spec = env.action_spec[0]
+    sizes = (
+        {"num_envs": 4, "steps_per_env": 8, "minibatch_size": 16}
+        if algo == "ppo"
+        else {"batch_size": 16, "buffer_size": 1000}
+    )
+    cfg = make_config(algo, "paper", hidden=(32, 16), **sizes)
+    torch.manual_seed(0)
+    with torch.no_grad():
+        data = env.rollout(8, make_agent(cfg, 12, spec, 30.0).actor, break_when_any_done=False)
+
+    def run(distribution):
+        monkeypatch.setattr(algorithms, "BoundedTanhNormal", distribution)
+        torch.manual_seed(0)
+        agent = make_agent(cfg, 12, spec, 30.0)
+        torch.manual_seed(1)
+        agent.learn(data.clone(), num_updates=3)
+        assert isinstance(agent.actor.get_dist(data[:, 0]), distribution)
+        return [p.detach().clone() for p in agent.loss.parameters()]
+
+    ours, theirs = run(BoundedTanhNormal), run(TanhNormal)
+    assert len(ours) == len(theirs)
+    for a, b in zip(ours, theirs, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)

@@ -27,7 +27,6 @@ from torchrl.modules import (
     AdditiveGaussianModule,
     ProbabilisticActor,
     TanhModule,
-    TanhNormal,
     ValueOperator,
 )
 from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, TD3Loss
@@ -41,6 +40,7 @@ from dockingrl.agents.config import (
     TD3Config,
     TrainConfig,
 )
+from dockingrl.agents.distributions import BoundedTanhNormal
 
 #: what an off-policy replay buffer stores of each transition
 TRANSITION_KEYS = (
@@ -266,7 +266,8 @@ def stochastic_actor(
 ):
     """Tanh-Normal actor (SAC, PPO): an MLP gives the loc and, unless
     ``state_independent_scale`` (one learned scale per action, initially 1), the scale too;
-    the sample is squashed into the bounds."""
+    the sample is squashed into the bounds (:class:`BoundedTanhNormal`, TorchRL's
+    ``TanhNormal`` computed without its transform chain)."""
     act_dim = action_spec.shape[-1]
     outputs, head = (
         (act_dim, AddStateIndependentNormalScale(act_dim, scale_lb=1e-4))
@@ -281,7 +282,7 @@ def stochastic_actor(
         in_keys=["loc", "scale"],
         out_keys=["action"],
         spec=action_spec,
-        distribution_class=TanhNormal,
+        distribution_class=BoundedTanhNormal,
         distribution_kwargs={"low": action_spec.space.low, "high": action_spec.space.high},
         return_log_prob=log_prob,
     )
