@@ -388,28 +388,28 @@ def test_bounded_tanh_normal_is_torchrls_tanh_normal_to_the_last_bit(method):
 
 @pytest.mark.parametrize("algo", ["sac", "ppo"])
 def test_agents_learn_the_same_with_torchrls_tanh_normal(algo, monkeypatch):
-    """Swapping the actors' distribution for TorchRL's ``TanhNormal`` changes no parameter of
-    a few updates, to the last bit."""
-    env = make_env("compound", 4, seed=0)
-    spec = env.action_spec[0]
+    """Swapping the actors' distribution for TorchRL's ``TanhNormal`` changes no collected
+    action or log-probability and no parameter after a few updates, to the last bit."""
     sizes = (
         {"num_envs": 4, "steps_per_env": 8, "minibatch_size": 16}
         if algo == "ppo"
         else {"batch_size": 16, "buffer_size": 1000}
     )
     cfg = make_config(algo, "paper", hidden=(32, 16), **sizes)
-    torch.manual_seed(0)
-    with torch.no_grad():
-        data = env.rollout(8, make_agent(cfg, 12, spec, 30.0).actor, break_when_any_done=False)
 
     def run(distribution):
         monkeypatch.setattr(algorithms, "BoundedTanhNormal", distribution)
+        env = make_env("compound", 4, seed=0)
         torch.manual_seed(0)
-        agent = make_agent(cfg, 12, spec, 30.0)
+        agent = make_agent(cfg, 12, env.action_spec[0], 30.0)
+        with torch.no_grad():
+            data = env.rollout(8, agent.actor, break_when_any_done=False)
+        assert isinstance(agent.actor.get_dist(data[:, 0]), distribution)
         torch.manual_seed(1)
         agent.learn(data.clone(), num_updates=3)
-        assert isinstance(agent.actor.get_dist(data[:, 0]), distribution)
-        return [p.detach().clone() for p in agent.loss.parameters()]
+        collected = [data[key] for key in ("action", "action_log_prob") if key in data.keys()]
+        assert len(collected) == (2 if algo == "ppo" else 1)
+        return collected + [p.detach().clone() for p in agent.loss.parameters()]
 
     ours, theirs = run(BoundedTanhNormal), run(TanhNormal)
     assert len(ours) == len(theirs)
