@@ -3,7 +3,9 @@
 :class:`BoundedTanhNormal` computes what TorchRL's ``TanhNormal`` (``tanh_loc=False``,
 ``safe_tanh=True``, one event dimension) computes, with the same operations in the same order,
 so samples, log-probabilities and their gradients are equal to the last bit for the same random
-state (``tests/test_agents.py``). It builds no ``torch.distributions`` transform chain and
+state (``tests/test_algorithms.py``; bounds given as numbers take the parameters' dtype here,
+where ``TanhNormal`` keeps them in the default dtype, so float64 parameters with number bounds
+differ by rounding). It builds no ``torch.distributions`` transform chain and
 checks no argument on construction: SAC builds two distributions per update, and that
 construction and the chain's log-determinant bookkeeping were 11 % of an eager SAC update at the
 paper's sizes on a 2-core CPU (``results/bench/update_speed.md``).
