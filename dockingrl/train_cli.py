@@ -41,33 +41,36 @@ def cmd_train(args: argparse.Namespace) -> int:
     from dockingrl.cli import command_line
     from dockingrl.training import TrainingInterrupted, train
 
-    try:
-        if args.resume:
-            given = {
+    if args.resume:
+        cfg, given = (
+            None,
+            {
                 name: value
                 for name, value in vars(args).items()
                 if value is not None and name in CONFIG_FIELDS
-            }
-            if args.algo is not None:
-                given["algo"] = args.algo
-            try:
-                result = train(
-                    None,
-                    resume=args.resume,
-                    progress=not args.no_progress,
-                    command=command_line(),
-                    overrides=given,
-                )
-            except (ValueError, FileNotFoundError) as exc:
-                raise SystemExit(f"error: {exc}") from exc
-        else:
-            if args.algo is None:
-                raise SystemExit("error: --algo is required (unless --resume RUN_DIR)")
-            cfg = config_from_args(args)
-            result = train(cfg, progress=not args.no_progress, command=command_line())
+            },
+        )
+        if args.algo is not None:
+            given["algo"] = args.algo
+    else:
+        if args.algo is None:
+            raise SystemExit("error: --algo is required (unless --resume RUN_DIR)")
+        cfg, given = config_from_args(args), None
+    try:
+        result = train(
+            cfg,
+            resume=args.resume,
+            progress=not args.no_progress,
+            command=command_line(),
+            overrides=given,
+        )
     except TrainingInterrupted as exc:  # SIGTERM / SIGINT: checkpointed, resumable
         print(exc, file=sys.stderr)
         return 128 + exc.signum
+    except (ValueError, FileNotFoundError) as exc:
+        if not args.resume:
+            raise
+        raise SystemExit(f"error: {exc}") from exc
     s, e = result["summary"], result["eval"]
     print(
         f"{s['algo']} {s['scenario']}: {s['frames']} env steps ({s['num_envs']} envs), "

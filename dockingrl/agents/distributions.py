@@ -75,7 +75,7 @@ class BoundedTanhNormal(D.Distribution):
             -((preimage - self.loc) ** 2) / (2 * self.scale**2) - self.scale.log() - _LOG_SQRT_2PI
         )
         tanh_log_det = 2.0 * (_LOG_2 - preimage - softplus(-2.0 * preimage))
-        log_det = tanh_log_det + self._half_width.abs().log().expand(preimage.shape)
+        log_det = tanh_log_det + self._half_width.abs().log()
         return normal.sum(-1) - log_det.sum(-1)
 
     def rsample_and_log_prob(self, sample_shape=()) -> tuple[torch.Tensor, torch.Tensor]:
