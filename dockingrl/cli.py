@@ -56,6 +56,8 @@ def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
 
     policy, meta = load_saved(path, device=device)
     options = {"observe_current": True} if meta["config"].get("observe_current") else {}
+    if meta["config"].get("action_repeat", 1) != 1:
+        options["action_repeat"] = meta["config"]["action_repeat"]
     return policy, meta.get("algo", "agent"), meta.get("scenario"), options
 
 

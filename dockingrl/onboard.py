@@ -7,6 +7,8 @@ eq. 2 (USBL range and bearing, heading, DVL surge and sway, IMU yaw rate; what
 station's frame, and call :meth:`OnboardPolicy.act`. In the ``filtered`` and ``compound``
 scenarios the policy runs the same EKF as the training env, initialised from the first reading
 of an approach and then predicted with the previous command and updated with each reading.
+A policy trained with ``--action-repeat k`` decides every ``k`` steps and holds its command in
+between, as in training; the filter still runs every step.
 ``reset()`` begins a new approach.
 """
 
@@ -37,13 +39,27 @@ class OnboardStep(nn.Module):
     with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B, 5)``
     and ``cov`` ``(B, 5, 5)``, the previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the
     steps since the approach began; ``age < 0`` marks a new approach (the filter starts from
-    ``z``). Scenarios without a filter pass the state through.
+    ``z``). Scenarios without a filter pass the filter's state through. With
+    ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the actor's command
+    is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as the training env
+    held it (:class:`~dockingrl.transforms.ActionRepeat`).
     """
 
-    def __init__(self, actor: nn.Module, scenario: str, ekf, observe_current: bool) -> None:
+    def __init__(
+        self,
+        actor: nn.Module,
+        scenario: str,
+        ekf,
+        observe_current: bool,
+        action_repeat: int = 1,
+    ) -> None:
         super().__init__()
+        if isinstance(action_repeat, bool) or not isinstance(action_repeat, int):
+            raise ValueError(f"action_repeat must be an integer >= 1, got {action_repeat!r}")
+        if action_repeat < 1:
+            raise ValueError(f"action_repeat must be an integer >= 1, got {action_repeat!r}")
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
-        self.observe_current = observe_current
+        self.observe_current, self.action_repeat = observe_current, action_repeat
 
     def forward(self, z, current, mean, cov, command, age):
         observation = z
@@ -52,12 +68,17 @@ class OnboardStep(nn.Module):
             parts = {"observation": z, "filtered_observation": filtered}
             keys = FILTERED_OBSERVATION_KEYS[self.scenario]
             observation = torch.cat([parts[key] for key in keys], -1)
+        else:
+            age = torch.where(age < 0, torch.zeros_like(age), age + 1)
         if self.observe_current:
             observation = torch.cat((observation, current), -1)
         td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
         with set_exploration_type(ExplorationType.DETERMINISTIC):
-            command = self.actor(td)["action"]
-        return command, mean, cov, age
+            new_command = self.actor(td)["action"]
+        if self.action_repeat == 1:
+            return new_command, mean, cov, age
+        decide = torch.remainder(age, self.action_repeat) == 0
+        return torch.where(decide, new_command, command), mean, cov, age
 
     def _filter(self, z, current, mean, cov, command, age):
         new_mean, new_cov, new_filtered = self.ekf.filter_step(
@@ -79,6 +100,8 @@ class OnboardPolicy(nn.Module):
         filter_params: learned ``Q`` and ``R`` (``dockingrl learn-filter``) for the EKF;
             ``None``: Tables 1-2.
         observe_current: the actor also reads the current (``--observe-current``).
+        action_repeat: the actor decides every this many steps and its command is held in
+            between (``--action-repeat``).
         config: the env config whose step length and command bounds the filter assumes.
     """
 
@@ -89,6 +112,7 @@ class OnboardPolicy(nn.Module):
         *,
         filter_params: str | Path | None = None,
         observe_current: bool = False,
+        action_repeat: int = 1,
         config: DockingConfig | None = None,
     ) -> None:
         super().__init__()
@@ -101,7 +125,7 @@ class OnboardPolicy(nn.Module):
         ekf = make_filter(config or DockingConfig()) if self.uses_filter else None
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
-        self.step = OnboardStep(actor, scenario, ekf, observe_current)
+        self.step = OnboardStep(actor, scenario, ekf, observe_current, action_repeat)
         self._state: tuple[torch.Tensor, ...] | None = None  # mean, cov, command, age
 
     @classmethod
@@ -112,8 +136,9 @@ class OnboardPolicy(nn.Module):
         filter_params: str | Path | None = None,
         device: torch.device | str = "cpu",
     ) -> OnboardPolicy:
-        """Load a policy saved by training (``policy.pt``); its scenario, its ``--observe-current``
-        and, unless ``filter_params`` is given, its training ``--filter-params`` come with it."""
+        """Load a policy saved by training (``policy.pt``); its scenario, its
+        ``--observe-current``, its ``--action-repeat`` and, unless ``filter_params`` is given,
+        its training ``--filter-params`` come with it."""
         from dockingrl.agents.saving import load_policy
 
         actor, info = load_policy(path, device=device)
@@ -124,6 +149,7 @@ class OnboardPolicy(nn.Module):
             info["scenario"],
             filter_params=params,
             observe_current=bool(config.get("observe_current")),
+            action_repeat=int(config.get("action_repeat", 1)),
         )
         return policy.to(device)
 

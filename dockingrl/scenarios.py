@@ -9,7 +9,7 @@ import torch
 from torchrl.envs import Compose, Transform, TransformedEnv
 
 from dockingrl.env import DockingConfig, DockingEnv
-from dockingrl.transforms import CompoundObservation, EKFTransform
+from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform
 
 #: scenario name -> what the policy reads as ``observation`` (number of entries)
 SCENARIOS = {
@@ -46,6 +46,7 @@ def make_env(
     transforms: Sequence[Transform] = (),
     compile: bool = False,
     observe_current: bool = False,
+    action_repeat: int = 1,
 ) -> TransformedEnv:
     """Build one of the paper's four scenarios (Sec. 4) as a ``TransformedEnv``.
 
@@ -71,6 +72,10 @@ def make_env(
             ``observation`` (+2 entries, last). Not in the paper: its policies see ground
             velocities only, although its EKF assumes the current known (Sec. 3.5, from the
             DVL's water track); this gives the policy the same knowledge.
+        action_repeat: hold each action for this many steps of ``dt``
+            (:class:`~dockingrl.transforms.ActionRepeat`, not in the paper): one env step is
+            then ``action_repeat`` simulation steps, with their rewards summed. Placed before
+            ``transforms``.
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
@@ -86,5 +91,8 @@ def make_env(
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
     if observe_current:
         stages.append(CompoundObservation(["observation", "ocean_current"]))
+    repeat = ActionRepeat(action_repeat)  # checks the value
+    if repeat.repeat > 1:
+        stages.append(repeat)
     stages += list(transforms)
     return TransformedEnv(base, Compose(*stages))

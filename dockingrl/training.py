@@ -153,6 +153,8 @@ def env_kwargs(cfg: TrainConfig) -> dict:
         kwargs["filter_params"] = cfg.filter_params
     if cfg.observe_current:
         kwargs["observe_current"] = True
+    if cfg.action_repeat != 1:
+        kwargs["action_repeat"] = cfg.action_repeat
     return kwargs
 
 
@@ -313,17 +315,18 @@ class Trainer:
 
     # -- the loop --------------------------------------------------------------------------
     def _collector(self, env) -> Collector:
-        cfg = self.cfg
+        # the collector counts transitions: one per action_repeat env steps
+        cfg, repeat = self.cfg, self.cfg.action_repeat
         if cfg.algo == "ppo":
             frames_per_batch = cfg.num_envs * cfg.steps_per_env
             random_frames = 0
         else:
             frames_per_batch = max(
-                cfg.num_envs, cfg.frames_per_batch // cfg.num_envs * cfg.num_envs
+                cfg.num_envs, cfg.frames_per_batch // repeat // cfg.num_envs * cfg.num_envs
             )
-            random_frames = max(0, cfg.start_steps - self.frames)
+            random_frames = -(-max(0, cfg.start_steps - self.frames) // repeat)
             random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
-        remaining = cfg.total_steps - self.frames
+        remaining = -(-(cfg.total_steps - self.frames) // repeat)
         return Collector(
             env,
             self.agent.exploration_policy,
@@ -370,7 +373,9 @@ class Trainer:
             for data in collector:
                 if self.frames >= cfg.total_steps:
                     break
-                batch_frames = data.numel()
+                # env steps: action_repeat per transition (fewer where an episode ended
+                # during the repeat; counted in full, as the batch stepped them)
+                batch_frames = data.numel() * cfg.action_repeat
                 self.frames += batch_frames
                 metrics = self._train_on(data)
                 done = data["next", "done"].squeeze(-1)
@@ -421,7 +426,7 @@ class Trainer:
     def _train_on(self, data) -> dict[str, float]:
         cfg = self.cfg
         if cfg.algo == "ppo":
-            progress = (self.frames - data.numel()) / cfg.total_steps
+            progress = (self.frames - data.numel() * cfg.action_repeat) / cfg.total_steps
             losses = self.agent.learn(data, progress=progress)
         else:
             learning_frames = self.frames - cfg.start_steps

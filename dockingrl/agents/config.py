@@ -117,6 +117,12 @@ class TrainConfig:
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
     )
+    action_repeat: int = _doc(
+        "hold each action for this many env steps of 0.2 s (1: the paper's; not in the "
+        "paper); total_steps, eval_every, start_steps and updates_per_step still count env "
+        "steps, one transition per action_repeat of them",
+        default=1,
+    )
 
     algo: str = ""  # set by the subclasses
 
@@ -141,6 +147,7 @@ class TrainConfig:
                 "final_eval_episodes",
                 "threads",
                 "eval_every",
+                "action_repeat",
             ),
             positive=("range_noise_scale", "bearing_noise_scale", "contact_speed_target"),
             fraction=("following_current_fraction",),

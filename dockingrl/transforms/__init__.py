@@ -17,9 +17,11 @@ from dockingrl.transforms.filtering import (
     NoiseContext,
     ProcessNoise,
 )
+from dockingrl.transforms.repeat import ActionRepeat
 from dockingrl.transforms.shaping import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
 
 __all__ = [
+    "ActionRepeat",
     "CompoundObservation",
     "ContactSpeedPenalty",
     "MissPenaltyFloor",
