@@ -156,3 +156,24 @@ def test_training_with_action_repeat_counts_env_steps_and_saves_it_with_the_poli
     assert again["total_reward"] == result["eval"]["total_reward"]
     onboard = OnboardPolicy.from_file(tmp_path / "ar" / "policy.pt")
     assert onboard.step.action_repeat == repeat
+
+
+def test_exported_onboard_program_holds_its_command_too(tmp_path):
+    from dockingrl.onboard import export_onboard
+
+    policy = OnboardPolicy(tiny_actor(12), "compound", action_repeat=3)
+    program = torch.export.load(export_onboard(policy, tmp_path / "p.pt2")).module()
+    reference = OnboardPolicy(tiny_actor(12), "compound", action_repeat=3)
+    env = make_env("compound", 1, seed=7)
+    td = env.reset()
+    state = policy.initial_state(1)
+    commands = []
+    for _ in range(7):
+        z, current = td["observation"][..., :6], td["ocean_current"]
+        command, mean, cov, age = program(z, current, *state)
+        torch.testing.assert_close(command, reference.act(z, current), rtol=1e-5, atol=1e-6)
+        state = (mean, cov, command, age)
+        commands.append(command)
+        td = step_mdp(env.step(td.set("action", command)))
+    held = [torch.equal(a, b) for a, b in zip(commands[:-1], commands[1:], strict=True)]
+    assert held == [True, True, False, True, True, False]
