@@ -26,6 +26,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from dockingrl.env import DockingConfig
 from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS, make_filter
 from dockingrl.transforms.ekf import measurement_function
+from dockingrl.transforms.repeat import check_action_repeat
 
 OBS_DIM = 6
 
@@ -39,10 +40,10 @@ class OnboardStep(nn.Module):
     with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B, 5)``
     and ``cov`` ``(B, 5, 5)``, the previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the
     steps since the approach began; ``age < 0`` marks a new approach (the filter starts from
-    ``z``). Scenarios without a filter pass the filter's state through. With
-    ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the actor's command
-    is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as the training env
-    held it (:class:`~dockingrl.transforms.ActionRepeat`).
+    ``z``). Scenarios without a filter pass ``mean`` and ``cov`` through and still count
+    ``age``. With ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the
+    actor's command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
+    the training env held it (:class:`~dockingrl.transforms.ActionRepeat`).
     """
 
     def __init__(
@@ -54,12 +55,9 @@ class OnboardStep(nn.Module):
         action_repeat: int = 1,
     ) -> None:
         super().__init__()
-        if isinstance(action_repeat, bool) or not isinstance(action_repeat, int):
-            raise ValueError(f"action_repeat must be an integer >= 1, got {action_repeat!r}")
-        if action_repeat < 1:
-            raise ValueError(f"action_repeat must be an integer >= 1, got {action_repeat!r}")
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
-        self.observe_current, self.action_repeat = observe_current, action_repeat
+        self.observe_current = observe_current
+        self.action_repeat = check_action_repeat(action_repeat)
 
     def forward(self, z, current, mean, cov, command, age):
         observation = z

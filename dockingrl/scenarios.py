@@ -10,6 +10,7 @@ from torchrl.envs import Compose, Transform, TransformedEnv
 
 from dockingrl.env import DockingConfig, DockingEnv
 from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform
+from dockingrl.transforms.repeat import check_action_repeat
 
 #: scenario name -> what the policy reads as ``observation`` (number of entries)
 SCENARIOS = {
@@ -91,8 +92,7 @@ def make_env(
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
     if observe_current:
         stages.append(CompoundObservation(["observation", "ocean_current"]))
-    repeat = ActionRepeat(action_repeat)  # checks the value
-    if repeat.repeat > 1:
-        stages.append(repeat)
+    if check_action_repeat(action_repeat) > 1:
+        stages.append(ActionRepeat(action_repeat))
     stages += list(transforms)
     return TransformedEnv(base, Compose(*stages))

@@ -16,6 +16,14 @@ from tensordict import TensorDictBase
 from torchrl.envs import Transform
 
 
+def check_action_repeat(repeat) -> int:
+    """``repeat`` if it is an integer >= 1 (not a bool), else ``ValueError``: the one check of
+    every place that takes an action repeat (the transform, ``make_env``, the onboard policy)."""
+    if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
+        raise ValueError(f"action_repeat must be an integer >= 1, got {repeat!r}")
+    return repeat
+
+
 def _where_live(live: torch.Tensor, new: TensorDictBase, old: TensorDictBase) -> TensorDictBase:
     """``new``'s entries where ``live`` (``(*batch, 1)``), ``old``'s elsewhere."""
     batch_dims = live.dim() - 1
@@ -49,10 +57,8 @@ class ActionRepeat(Transform):
     """
 
     def __init__(self, repeat: int) -> None:
-        if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
-            raise ValueError(f"repeat must be an integer >= 1, got {repeat!r}")
         super().__init__()
-        self.repeat = repeat
+        self.repeat = check_action_repeat(repeat)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         if self.repeat == 1:
