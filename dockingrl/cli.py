@@ -53,11 +53,10 @@ def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
     if not path.exists():
         raise SystemExit(f"error: --policy {spec!r} is neither 'managed_surge' nor a file")
     from dockingrl.agents.saving import load_policy as load_saved
+    from dockingrl.agents.saving import pipeline_options
 
     policy, meta = load_saved(path, device=device)
-    options = {"observe_current": True} if meta["config"].get("observe_current") else {}
-    if meta["config"].get("action_repeat", 1) != 1:
-        options["action_repeat"] = meta["config"]["action_repeat"]
+    options = pipeline_options(meta["config"])
     return policy, meta.get("algo", "agent"), meta.get("scenario"), options
 
 

@@ -137,7 +137,7 @@ class OnboardPolicy(nn.Module):
         """Load a policy saved by training (``policy.pt``); its scenario, its
         ``--observe-current``, its ``--action-repeat`` and, unless ``filter_params`` is given,
         its training ``--filter-params`` come with it."""
-        from dockingrl.agents.saving import load_policy
+        from dockingrl.agents.saving import load_policy, pipeline_options
 
         actor, info = load_policy(path, device=device)
         config = info["config"]
@@ -146,8 +146,7 @@ class OnboardPolicy(nn.Module):
             actor,
             info["scenario"],
             filter_params=params,
-            observe_current=bool(config.get("observe_current")),
-            action_repeat=int(config.get("action_repeat", 1)),
+            **pipeline_options(config),
         )
         return policy.to(device)
 

@@ -20,7 +20,7 @@ from torchrl.envs.utils import ExplorationType
 
 from dockingrl.agents.algorithms import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
-from dockingrl.agents.saving import save_policy
+from dockingrl.agents.saving import pipeline_options, save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import make_env
@@ -139,7 +139,7 @@ def read_curves(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
 
 def env_kwargs(cfg: TrainConfig) -> dict:
     """The :func:`~dockingrl.make_env` options a training config implies (sensor-noise
-    scaling, learned filter parameters)."""
+    scaling, learned filter parameters, and :func:`pipeline_options`)."""
     from dockingrl.env import DockingConfig
 
     base = DockingConfig()
@@ -151,10 +151,7 @@ def env_kwargs(cfg: TrainConfig) -> dict:
     }
     if cfg.filter_params:
         kwargs["filter_params"] = cfg.filter_params
-    if cfg.observe_current:
-        kwargs["observe_current"] = True
-    if cfg.action_repeat != 1:
-        kwargs["action_repeat"] = cfg.action_repeat
+    kwargs.update(pipeline_options(cfg.to_dict()))
     return kwargs
 
 
@@ -377,7 +374,7 @@ class Trainer:
                 # during the repeat; counted in full, as the batch stepped them)
                 batch_frames = data.numel() * cfg.action_repeat
                 self.frames += batch_frames
-                metrics = self._train_on(data)
+                metrics = self._train_on(data, batch_frames)
                 done = data["next", "done"].squeeze(-1)
                 if bool(done.any()):
                     self.episodes += int(done.sum())
@@ -423,10 +420,11 @@ class Trainer:
             if bar is not None:
                 bar.close()
 
-    def _train_on(self, data) -> dict[str, float]:
+    def _train_on(self, data, batch_frames: int) -> dict[str, float]:
+        """Update on a collected batch of ``batch_frames`` env steps (already counted)."""
         cfg = self.cfg
         if cfg.algo == "ppo":
-            progress = (self.frames - data.numel() * cfg.action_repeat) / cfg.total_steps
+            progress = (self.frames - batch_frames) / cfg.total_steps
             losses = self.agent.learn(data, progress=progress)
         else:
             learning_frames = self.frames - cfg.start_steps

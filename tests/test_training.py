@@ -131,11 +131,11 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(tmp_path, monke
     cfg = tiny_config("sac", "compound", tmp_path, checkpoint_every=0)
     original, batches = Trainer._train_on, []
 
-    def train_then_signal(self, data):
+    def train_then_signal(self, data, batch_frames):
         batches.append(data.numel())
         if len(batches) == 2:
             os.kill(os.getpid(), signal.SIGTERM)
-        return original(self, data)
+        return original(self, data, batch_frames)
 
     monkeypatch.setattr(Trainer, "_train_on", train_then_signal)
     before = signal.getsignal(signal.SIGTERM)
