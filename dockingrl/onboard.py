@@ -43,7 +43,9 @@ class OnboardStep(nn.Module):
     ``z``). Scenarios without a filter pass ``mean`` and ``cov`` through and still count
     ``age``. With ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the
     actor's command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
-    the training env held it (:class:`~dockingrl.transforms.ActionRepeat`).
+    the training env held it (:class:`~dockingrl.transforms.ActionRepeat`). With
+    ``observe_command`` the actor also reads ``command`` (zeros on an approach's first step),
+    as the training env's :class:`~dockingrl.transforms.PreviousAction` gave it.
     """
 
     def __init__(
@@ -53,10 +55,11 @@ class OnboardStep(nn.Module):
         ekf,
         observe_current: bool,
         action_repeat: int = 1,
+        observe_command: bool = False,
     ) -> None:
         super().__init__()
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
-        self.observe_current = observe_current
+        self.observe_current, self.observe_command = observe_current, observe_command
         self.action_repeat = check_action_repeat(action_repeat)
 
     def forward(self, z, current, mean, cov, command, age):
@@ -70,6 +73,9 @@ class OnboardStep(nn.Module):
             age = torch.where(age < 0, torch.zeros_like(age), age + 1)
         if self.observe_current:
             observation = torch.cat((observation, current), -1)
+        if self.observe_command:
+            previous = torch.where(age == 0, torch.zeros_like(command), command)
+            observation = torch.cat((observation, previous), -1)
         td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             new_command = self.actor(td)["action"]
@@ -98,6 +104,7 @@ class OnboardPolicy(nn.Module):
         filter_params: learned ``Q`` and ``R`` (``dockingrl learn-filter``) for the EKF;
             ``None``: Tables 1-2.
         observe_current: the actor also reads the current (``--observe-current``).
+        observe_command: the actor also reads its previous command (``--observe-command``).
         action_repeat: the actor decides every this many steps and its command is held in
             between (``--action-repeat``).
         config: the env config whose step length and command bounds the filter assumes.
@@ -110,6 +117,7 @@ class OnboardPolicy(nn.Module):
         *,
         filter_params: str | Path | None = None,
         observe_current: bool = False,
+        observe_command: bool = False,
         action_repeat: int = 1,
         config: DockingConfig | None = None,
     ) -> None:
@@ -123,7 +131,9 @@ class OnboardPolicy(nn.Module):
         ekf = make_filter(config or DockingConfig()) if self.uses_filter else None
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
-        self.step = OnboardStep(actor, scenario, ekf, observe_current, action_repeat)
+        self.step = OnboardStep(
+            actor, scenario, ekf, observe_current, action_repeat, observe_command
+        )
         self._state: tuple[torch.Tensor, ...] | None = None  # mean, cov, command, age
 
     @classmethod
@@ -135,7 +145,7 @@ class OnboardPolicy(nn.Module):
         device: torch.device | str = "cpu",
     ) -> OnboardPolicy:
         """Load a policy saved by training (``policy.pt``); its scenario, its
-        ``--observe-current``, its ``--action-repeat`` and, unless ``filter_params`` is given,
+        ``--observe-current``, ``--observe-command``, its ``--action-repeat`` and, unless ``filter_params`` is given,
         its training ``--filter-params`` come with it."""
         from dockingrl.agents.saving import load_policy, pipeline_options
 

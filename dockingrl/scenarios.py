@@ -9,7 +9,7 @@ import torch
 from torchrl.envs import Compose, Transform, TransformedEnv
 
 from dockingrl.env import DockingConfig, DockingEnv
-from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform
+from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform, PreviousAction
 from dockingrl.transforms.repeat import check_action_repeat
 
 #: scenario name -> what the policy reads as ``observation`` (number of entries)
@@ -47,6 +47,7 @@ def make_env(
     transforms: Sequence[Transform] = (),
     compile: bool = False,
     observe_current: bool = False,
+    observe_command: bool = False,
     action_repeat: int = 1,
 ) -> TransformedEnv:
     """Build one of the paper's four scenarios (Sec. 4) as a ``TransformedEnv``.
@@ -73,6 +74,11 @@ def make_env(
             ``observation`` (+2 entries, last). Not in the paper: its policies see ground
             velocities only, although its EKF assumes the current known (Sec. 3.5, from the
             DVL's water track); this gives the policy the same knowledge.
+        observe_command: append the command applied at the previous step (zeros at an
+            episode's start; :class:`~dockingrl.transforms.PreviousAction`) to ``observation``
+            (+2 entries, last, after the current's). Not in the paper: the vehicle knows
+            what it commanded, and with it the ground velocity tells its own speed through
+            the water from the current's drift.
         action_repeat: hold each action for this many steps of ``dt``
             (:class:`~dockingrl.transforms.ActionRepeat`, not in the paper): one env step is
             then ``action_repeat`` simulation steps, with their rewards summed. Placed before
@@ -92,6 +98,11 @@ def make_env(
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
     if observe_current:
         stages.append(CompoundObservation(["observation", "ocean_current"]))
+    if observe_command:
+        stages += [
+            PreviousAction(config.action_low, config.action_high),
+            CompoundObservation(["observation", "previous_action"]),
+        ]
     if check_action_repeat(action_repeat) > 1:
         stages.append(ActionRepeat(action_repeat))
     stages += list(transforms)

@@ -117,6 +117,11 @@ class TrainConfig:
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
     )
+    observe_command: bool = _doc(
+        "append the command applied at the previous step to the policy's observation, "
+        "after the current's (zeros at an episode's start; not in the paper)",
+        default=False,
+    )
     action_repeat: int = _doc(
         "hold each action for this many env steps of 0.2 s (1: the paper's; not in the "
         "paper); total_steps, eval_every, start_steps and updates_per_step still count env "

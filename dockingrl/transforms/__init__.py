@@ -10,6 +10,7 @@ from dockingrl.transforms.ekf import (
     motion_jacobian,
     motion_model,
 )
+from dockingrl.transforms.command import PreviousAction
 from dockingrl.transforms.filtering import (
     CompoundObservation,
     EKFTransform,
@@ -26,6 +27,7 @@ __all__ = [
     "ContactSpeedPenalty",
     "MissPenaltyFloor",
     "PassedStationEnd",
+    "PreviousAction",
     "EKFTransform",
     "MeasurementNoise",
     "NoiseContext",
