@@ -145,8 +145,8 @@ class OnboardPolicy(nn.Module):
         device: torch.device | str = "cpu",
     ) -> OnboardPolicy:
         """Load a policy saved by training (``policy.pt``); its scenario, its
-        ``--observe-current``, ``--observe-command``, its ``--action-repeat`` and, unless ``filter_params`` is given,
-        its training ``--filter-params`` come with it."""
+        ``--observe-current``, ``--observe-command`` and ``--action-repeat`` and, unless
+        ``filter_params`` is given, its training ``--filter-params`` come with it."""
         from dockingrl.agents.saving import load_policy, pipeline_options
 
         actor, info = load_policy(path, device=device)

@@ -16,8 +16,9 @@ FORMAT = "dockingrl.policy/1"
 def pipeline_options(config: Mapping) -> dict:
     """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (as a
     dict, e.g. a saved policy's ``config``) fixes for whatever runs its policy:
-    ``observe_current``, ``observe_command`` and ``action_repeat``, where they differ from the paper's. Training,
-    ``dockingrl eval --policy`` and ``OnboardPolicy.from_file`` all take them from here."""
+    ``observe_current``, ``observe_command`` and ``action_repeat``, where they differ from the
+    paper's. Training, ``dockingrl eval --policy`` and ``OnboardPolicy.from_file`` all take them
+    from here."""
     options: dict = {}
     if config.get("observe_current"):
         options["observe_current"] = True

@@ -1,5 +1,6 @@
 """The EKF (pure functions and a TorchRL transform) and the compound observation."""
 
+from dockingrl.transforms.command import PreviousAction
 from dockingrl.transforms.ekf import (
     ekf_predict,
     ekf_step,
@@ -10,7 +11,6 @@ from dockingrl.transforms.ekf import (
     motion_jacobian,
     motion_model,
 )
-from dockingrl.transforms.command import PreviousAction
 from dockingrl.transforms.filtering import (
     CompoundObservation,
     EKFTransform,
