@@ -3,12 +3,12 @@ policy and training all count and apply it the same way."""
 
 import pytest
 import torch
+from helpers import smoke_config, tiny_actor
 from tensordict import TensorDict
 from torchrl.envs import RewardSum
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from dockingrl import make_env
-from dockingrl.agents.algorithms import build_actor
 from dockingrl.agents.config import make_config
 from dockingrl.agents.saving import load_policy
 from dockingrl.env import DockingConfig
@@ -80,13 +80,6 @@ def test_action_repeat_refuses_bad_values_and_standalone_use():
         make_config("sac", "paper", action_repeat=0)
 
 
-def tiny_actor(obs_dim, seed=0):
-    torch.manual_seed(seed)
-    env = make_env("noise", 1, seed=0)
-    cfg = make_config("sac", "paper", scenario="compound", hidden=(32, 32))
-    return build_actor(cfg, obs_dim, env.action_spec[0], 30.0).eval()
-
-
 @pytest.mark.parametrize("scenario", ["noise", "compound"])
 def test_onboard_policy_holds_its_command_as_the_training_env_did(scenario):
     """The onboard policy fed the readings of every 0.2 s step drives the vehicles along the
@@ -122,26 +115,20 @@ def test_onboard_policy_holds_its_command_as_the_training_env_did(scenario):
 
 def test_training_with_action_repeat_counts_env_steps_and_saves_it_with_the_policy(tmp_path):
     repeat = 4
-    cfg = make_config(
+    cfg = smoke_config(
         "sac",
-        "paper",
-        scenario="compound",
+        "compound",
+        tmp_path,
+        "ar",
         total_steps=768,
-        num_envs=4,
         start_steps=192,
         frames_per_batch=192,
-        batch_size=32,
-        hidden=(32, 32),
         updates_per_step=0.5,
         eval_every=384,
         eval_episodes=3,
         final_eval_episodes=6,
         logger="csv",
-        checkpoint_every=0,
-        threads=1,
         action_repeat=repeat,
-        out=str(tmp_path),
-        run_name="ar",
     )
     result = train(cfg, progress=False)
     s = result["summary"]

@@ -4,6 +4,7 @@ collections, the bootstrap discount, checkpoints and a training run; the critics
 
 import pytest
 import torch
+from helpers import smoke_config
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torchrl.modules import TanhNormal, ValueOperator
@@ -168,26 +169,17 @@ def test_n_steps_must_fit_one_collection():
 
 @pytest.mark.parametrize("algo", ["sac", "td3"])
 def test_off_policy_agents_train_with_n_step_targets(algo, tmp_path):
-    cfg = make_config(
+    cfg = smoke_config(
         algo,
-        "paper",
-        scenario="no_noise",
+        "no_noise",
+        tmp_path,
+        f"{algo}_n3",
         n_steps=3,
         total_steps=400,
-        num_envs=4,
         start_steps=100,
         frames_per_batch=100,
-        batch_size=32,
-        hidden=(32, 32),
         updates_per_step=0.5,
         eval_every=400,
-        eval_episodes=2,
-        final_eval_episodes=4,
-        logger="none",
-        checkpoint_every=0,
-        threads=1,
-        out=str(tmp_path),
-        run_name=f"{algo}_n3",
     )
     result = train(cfg, progress=False)
     assert result["summary"]["frames"] == 400

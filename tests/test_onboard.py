@@ -5,12 +5,11 @@ import sys
 
 import pytest
 import torch
+from helpers import tiny_actor
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dockingrl import make_env
-from dockingrl.agents.algorithms import build_actor
-from dockingrl.agents.config import make_config
 from dockingrl.env import DockingConfig
 from dockingrl.onboard import OnboardPolicy
 
@@ -18,11 +17,7 @@ SCENARIO_DIMS = {"noise": 6, "filtered": 6, "compound": 12}
 
 
 def random_actor(algo, scenario, observe_current=False, seed=0):
-    torch.manual_seed(seed)
-    env = make_env("noise", 1, seed=0)
-    obs_dim = SCENARIO_DIMS[scenario] + (2 if observe_current else 0)
-    cfg = make_config(algo, "paper", scenario=scenario, hidden=(32, 32))
-    return build_actor(cfg, obs_dim, env.action_spec[0], 30.0).eval()
+    return tiny_actor(SCENARIO_DIMS[scenario] + (2 if observe_current else 0), algo, seed)
 
 
 def expected_input(scenario, compound, current, observe_current):

@@ -3,24 +3,16 @@ onboard policy, its exported program and training agree on what the actor reads.
 
 import pytest
 import torch
+from helpers import smoke_config, tiny_actor
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, check_env_specs, set_exploration_type, step_mdp
 
 from dockingrl import make_env
-from dockingrl.agents.algorithms import build_actor
-from dockingrl.agents.config import make_config
 from dockingrl.agents.saving import load_policy, pipeline_options
 from dockingrl.env import DockingConfig
 from dockingrl.onboard import OnboardPolicy, export_onboard
 from dockingrl.training import train
 from dockingrl.transforms import PreviousAction
-
-
-def tiny_actor(obs_dim, seed=0):
-    torch.manual_seed(seed)
-    env = make_env("noise", 1, seed=0)
-    cfg = make_config("sac", "paper", scenario="compound", hidden=(32, 32))
-    return build_actor(cfg, obs_dim, env.action_spec[0], 30.0).eval()
 
 
 def test_previous_action_is_the_applied_command_and_zero_after_a_reset():
@@ -109,25 +101,16 @@ def test_exported_onboard_program_reads_its_previous_command_too(tmp_path):
 
 
 def test_training_saves_observe_command_with_the_policy(tmp_path):
-    cfg = make_config(
+    cfg = smoke_config(
         "td3",
-        "paper",
-        scenario="noise",
+        "noise",
+        tmp_path,
+        "cmd",
         total_steps=256,
-        num_envs=4,
         start_steps=64,
         frames_per_batch=64,
-        batch_size=32,
-        hidden=(32, 32),
         eval_every=256,
-        eval_episodes=2,
-        final_eval_episodes=4,
-        logger="none",
-        checkpoint_every=0,
-        threads=1,
         observe_command=True,
-        out=str(tmp_path),
-        run_name="cmd",
     )
     train(cfg, progress=False)
     actor, info = load_policy(tmp_path / "cmd" / "policy.pt")

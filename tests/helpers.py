@@ -1,0 +1,37 @@
+"""Small builders shared by the tests: an untrained actor and a training config sized for a
+smoke run."""
+
+import torch
+
+from dockingrl import make_env
+from dockingrl.agents.algorithms import build_actor
+from dockingrl.agents.config import make_config
+
+
+def tiny_actor(obs_dim, algo="sac", seed=0):
+    """An untrained ``algo`` actor with 2 x 32 hidden units reading ``obs_dim`` numbers."""
+    torch.manual_seed(seed)
+    env = make_env("noise", 1, seed=0)
+    cfg = make_config(algo, "paper", scenario="compound", hidden=(32, 32))
+    return build_actor(cfg, obs_dim, env.action_spec[0], 30.0).eval()
+
+
+def smoke_config(algo, scenario, tmp_path, run_name, **overrides):
+    """The ``paper`` preset of ``algo`` cut down to a run of seconds on one thread (4 envs,
+    batch 32, 2 x 32 hidden, no logger, no checkpoints), written under ``tmp_path``;
+    ``overrides`` set the budget and anything else."""
+    fields = dict(
+        scenario=scenario,
+        num_envs=4,
+        batch_size=32,
+        hidden=(32, 32),
+        eval_episodes=2,
+        final_eval_episodes=4,
+        logger="none",
+        checkpoint_every=0,
+        threads=1,
+        out=str(tmp_path),
+        run_name=run_name,
+    )
+    fields.update(overrides)
+    return make_config(algo, "paper", **fields)
