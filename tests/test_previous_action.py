@@ -46,6 +46,19 @@ def test_previous_action_is_the_applied_command_and_zero_after_a_reset():
     check_env_specs(env)
 
 
+def test_a_partial_reset_zeroes_the_reset_envs_only():
+    env = make_env("noise", 4, seed=1, observe_command=True)
+    td = env.reset()
+    action = torch.tensor([[0.5, 0.1], [0.2, -0.2], [-0.3, 0.3], [0.7, 0.0]])
+    td = step_mdp(env.step(td.set("action", action)))
+    assert torch.equal(td["observation"][:, 6:], action)
+    td["_reset"] = torch.tensor([True, False, True, False]).unsqueeze(-1)
+    td = env.reset(td)
+    expected = action.clone()
+    expected[[0, 2]] = 0.0
+    assert torch.equal(td["observation"][:, 6:], expected)
+
+
 def test_previous_action_refuses_bad_bounds_and_standalone_use():
     with pytest.raises(ValueError, match="low < high"):
         PreviousAction([0.8, 0.3], [-0.4, -0.3])
@@ -81,10 +94,11 @@ def test_onboard_policy_reads_its_previous_command_as_the_training_env_gave_it(s
     assert resets == 2 * n
 
 
-def test_exported_onboard_program_reads_its_previous_command_too(tmp_path):
-    policy = OnboardPolicy(tiny_actor(14), "compound", observe_command=True)
+@pytest.mark.parametrize(("scenario", "dim"), [("noise", 8), ("compound", 14)])
+def test_exported_onboard_program_reads_its_previous_command_too(tmp_path, scenario, dim):
+    policy = OnboardPolicy(tiny_actor(dim), scenario, observe_command=True)
     program = torch.export.load(export_onboard(policy, tmp_path / "p.pt2")).module()
-    reference = OnboardPolicy(tiny_actor(14), "compound", observe_command=True)
+    reference = OnboardPolicy(tiny_actor(dim), scenario, observe_command=True)
     env = make_env("compound", 1, seed=7)
     td = env.reset()
     state = policy.initial_state(1)
@@ -92,7 +106,8 @@ def test_exported_onboard_program_reads_its_previous_command_too(tmp_path):
         z, current = td["observation"][..., :6], td["ocean_current"]
         command, mean, cov, age = program(z, current, *state)
         torch.testing.assert_close(command, reference.act(z, current), rtol=1e-5, atol=1e-6)
-        # the same step with another previous command decides otherwise: the input is read
+        # the same step with another previous command decides otherwise: the actor reads it
+        # (without a filter, "noise", nothing else in the step does)
         other = program(z, current, state[0], state[1], -state[2] + 0.1, state[3])[0]
         if state[3].item() >= 0:
             assert not torch.allclose(other, command)

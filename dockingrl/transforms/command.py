@@ -19,7 +19,6 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
-from torchrl.envs.transforms.utils import _get_reset
 
 
 class PreviousAction(Transform):
@@ -55,20 +54,18 @@ class PreviousAction(Transform):
         self.register_buffer("action_high", high)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get(self.in_keys[0])
-        low, high = self.action_low.to(action), self.action_high.to(action)
-        next_tensordict.set(self.out_keys[0], torch.maximum(torch.minimum(action, high), low))
+        action = tensordict.get(self.in_keys[0]).to(self.action_low.dtype)
+        applied = torch.maximum(torch.minimum(action, self.action_high), self.action_low)
+        next_tensordict.set(self.out_keys[0], applied)
         return next_tensordict
 
     def _reset(
         self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
     ) -> TensorDictBase:
+        # zeros for every env: on a partial reset, TransformedEnv keeps the entries of the
+        # envs outside the "_reset" mask
         shape = (*tensordict_reset.batch_size, self.action_low.numel())
         zeros = torch.zeros(shape, dtype=self.action_low.dtype, device=tensordict_reset.device)
-        previous = tensordict.get(self.out_keys[0], None) if tensordict is not None else None
-        if previous is not None:
-            reset = _get_reset(self.parent.reset_keys[0], tensordict).reshape(shape[:-1])
-            zeros = torch.where(reset.unsqueeze(-1), zeros, previous.to(zeros))
         tensordict_reset.set(self.out_keys[0], zeros)
         return tensordict_reset
 
