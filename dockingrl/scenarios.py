@@ -27,6 +27,33 @@ FILTERED_OBSERVATION_KEYS = {
 }
 
 
+#: how the mirror ``y -> -y`` acts on one 6-number observation of eq. 2
+#: ``[rho, psi, alpha, vx, vy, w]``: bearing, heading, sway and yaw rate change sign
+MIRROR_OBSERVATION = (1.0, -1.0, -1.0, 1.0, -1.0, -1.0)
+#: ... and on a command ``(v_d, w_d)`` or a current ``(oc_x, oc_y)``: the second entry changes sign
+MIRROR_PAIR = (1.0, -1.0)
+
+
+def mirror_signs(
+    scenario: str, *, observe_current: bool = False, observe_command: bool = False
+) -> torch.Tensor:
+    """The signs that mirror the policy's ``observation`` of ``scenario`` (with the options
+    of :func:`make_env`) through the docking axis, ``y -> -y``.
+
+    The task is symmetric under that mirror: with heading, sway, yaw rate, turn command and
+    ``oc_y`` negated, the dynamics (eqs. 36-38), the sensor noise (Table 2, zero-mean and
+    symmetric), the EKF (eqs. 22-34, diagonal ``Q`` and ``R``), the start distribution
+    (Sec. 4.1) and the reward (eqs. 4-12: ``e_alpha`` and ``y`` change sign together) are all
+    unchanged. So a transition mirrored entry by entry (observations by these signs, the action
+    by ``MIRROR_PAIR``, reward and flags as they are) is a transition of the same task."""
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
+    blocks = 2 if scenario == "compound" else 1
+    signs = list(MIRROR_OBSERVATION) * blocks
+    signs += list(MIRROR_PAIR) * (int(observe_current) + int(observe_command))
+    return torch.tensor(signs)
+
+
 def make_filter(config: DockingConfig, **ekf_kwargs) -> EKFTransform:
     """The EKF transform matched to an env config (step length, action bounds)."""
     ekf_kwargs.setdefault("dt", config.dt)

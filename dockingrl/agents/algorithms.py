@@ -41,6 +41,7 @@ from dockingrl.agents.config import (
     TrainConfig,
 )
 from dockingrl.agents.distributions import BoundedTanhNormal
+from dockingrl.scenarios import MIRROR_PAIR, mirror_signs
 
 #: what an off-policy replay buffer stores of each transition
 TRANSITION_KEYS = (
@@ -64,6 +65,25 @@ def transition_keys(cfg: TrainConfig) -> tuple:
     if not getattr(cfg, "privileged_critic", False):
         return TRANSITION_KEYS
     return TRANSITION_KEYS + PRIVILEGED_KEYS + tuple(("next", k) for k in PRIVILEGED_KEYS)
+
+
+def mirror_transitions(data: TensorDictBase, observation_signs: torch.Tensor) -> TensorDictBase:
+    """``data``'s transitions mirrored through the docking axis (``y -> -y``, not in the
+    paper): ``observation`` and ``("next", "observation")`` times ``observation_signs``
+    (:func:`dockingrl.scenarios.mirror_signs`), the turn command of ``action`` negated; reward,
+    flags and step counts unchanged. A new tensordict; ``data`` is left as it is."""
+    out = data.clone()
+    signs = observation_signs.to(device=data.device, dtype=data["observation"].dtype)
+    if signs.shape[-1] != data["observation"].shape[-1]:
+        raise ValueError(
+            f"{signs.shape[-1]} mirror signs for an observation of "
+            f"{data['observation'].shape[-1]} numbers"
+        )
+    out["observation"] = data["observation"] * signs
+    out["next", "observation"] = data["next", "observation"] * signs
+    action_signs = torch.tensor(MIRROR_PAIR, device=data.device, dtype=data["action"].dtype)
+    out["action"] = data["action"] * action_signs
+    return out
 
 
 def n_step_transitions(data: TensorDictBase, n_steps: int, gamma: float) -> TensorDictBase:
@@ -343,12 +363,25 @@ class Agent:
         if self.config.algo == "ppo":
             return self._learn_ppo(data, progress)
         keys = transition_keys(self.config)
-        self.replay_buffer.extend(self._transitions(data.select(*keys)).reshape(-1))
+        transitions = self._transitions(data.select(*keys)).reshape(-1)
+        self.replay_buffer.extend(transitions)
+        if getattr(self.config, "mirror_augment", False):
+            self.replay_buffer.extend(mirror_transitions(transitions, self._mirror_signs()))
         logs: dict[str, list[float]] = {}
         for _ in range(num_updates):
             for key, value in self._off_policy_update().items():
                 logs.setdefault(key, []).append(value)
         return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _mirror_signs(self) -> torch.Tensor:
+        cfg = self.config
+        if "mirror_signs" not in self.extra:
+            self.extra["mirror_signs"] = mirror_signs(
+                cfg.scenario,
+                observe_current=cfg.observe_current,
+                observe_command=cfg.observe_command,
+            )
+        return self.extra["mirror_signs"]
 
     def _transitions(self, data: TensorDictBase) -> TensorDictBase:
         """What the replay buffer stores of ``data``: one-step transitions, or with

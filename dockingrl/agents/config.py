@@ -197,6 +197,12 @@ class OffPolicyConfig(TrainConfig):
         "the paper)",
         default=False,
     )
+    mirror_augment: bool = _doc(
+        "store each transition twice in the replay buffer: as collected and mirrored "
+        "through the docking axis (y -> -y; the task is symmetric under it, see "
+        "dockingrl.scenarios.mirror_signs; not in the paper)",
+        default=False,
+    )
 
     def validate(self) -> None:
         super().validate()
@@ -215,6 +221,10 @@ class OffPolicyConfig(TrainConfig):
                 f"{name}.n_steps: at most the steps per env of one collection, "
                 f"frames_per_batch // num_envs = {self.frames_per_batch // self.num_envs} "
                 f"(got {self.n_steps})"
+            )
+        if self.mirror_augment and getattr(self, "privileged_critic", False):
+            raise ValueError(
+                f"{name}.mirror_augment: not with privileged_critic (its features are not mirrored)"
             )
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             raise ValueError(

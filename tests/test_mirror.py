@@ -1,0 +1,156 @@
+"""The task's mirror symmetry (``y -> -y``) and the replay augmentation built on it
+(``--mirror-augment``)."""
+
+import pytest
+import torch
+from helpers import smoke_config
+from torchrl.envs.utils import step_mdp
+
+from dockingrl import make_env
+from dockingrl.agents.algorithms import mirror_transitions
+from dockingrl.agents.config import make_config
+from dockingrl.env import DockingConfig
+from dockingrl.scenarios import make_filter, mirror_signs
+from dockingrl.training import train
+from dockingrl.transforms.ekf import ekf_step
+
+STATE_SIGNS = torch.tensor([1.0, -1.0, -1.0, 1.0, -1.0])  # EKF state [x, y, alpha, nu, w]
+PAIR = torch.tensor([1.0, -1.0])
+
+
+def rollout(env, actions):
+    td = env.reset()
+    steps = []
+    for action in actions:
+        td = env.step(td.set("action", action))
+        steps.append(td.clone())
+        td = step_mdp(td)
+    return torch.stack(steps, dim=-1)
+
+
+def test_the_env_is_symmetric_under_the_mirror_and_mirror_transitions_maps_one_onto_the_other():
+    """A noise-free env started at the mirrored pose and current and driven with the mirrored
+    commands gives the mirrored observations (current and previous command included) and
+    the same rewards and ends: mirror_transitions of one rollout is the other rollout."""
+    n, steps = 8, 150
+    g = torch.Generator().manual_seed(0)
+    pose = torch.stack(
+        (
+            -5.0 - 3.0 * torch.rand(n, generator=g),
+            2.0 * torch.rand(n, generator=g) - 1.0,
+            0.5 * torch.rand(n, generator=g) - 0.25,
+        ),
+        -1,
+    )
+    current = 0.2 * torch.rand(n, 2, generator=g) - 0.1  # near the station, weak currents
+    options = {"observe_current": True, "observe_command": True}
+    env, mirrored = (
+        make_env("no_noise", n, seed=0, **options),
+        make_env("no_noise", n, seed=0, **options),
+    )
+    env.base_env.set_initial_state(pose, current)
+    mirrored.base_env.set_initial_state(pose * torch.tensor([1.0, -1.0, -1.0]), current * PAIR)
+    # a steering behaviour, so that episodes dock
+    actions, td = [], env.reset()
+    for _ in range(steps):
+        psi = td["observation"][:, 1]
+        actions.append(torch.stack((torch.full_like(psi, 0.5), (0.8 * psi).clamp(-0.3, 0.3)), -1))
+        td = step_mdp(env.step(td.set("action", actions[-1])))
+    a = rollout(env, actions)
+    b = rollout(mirrored, [action * PAIR for action in actions])
+    signs = mirror_signs("no_noise", **options)
+    assert signs.tolist() == [1, -1, -1, 1, -1, -1, 1, -1, 1, -1]
+    m = mirror_transitions(a.select("observation", "action", "next"), signs)
+    torch.testing.assert_close(m["observation"], b["observation"], rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(
+        m["next", "observation"], b["next", "observation"], rtol=1e-4, atol=1e-4
+    )
+    torch.testing.assert_close(m["action"], b["action"])
+    torch.testing.assert_close(a["next", "reward"], b["next", "reward"], rtol=1e-4, atol=1e-4)
+    assert torch.equal(a["next", "done"], b["next", "done"])
+    assert bool(a["next", "terminated"].any())  # some contacts, whose reward is eq. 12's
+    # the unmirrored rollout is not already symmetric: the check can fail
+    assert not torch.allclose(a["observation"], b["observation"], atol=1e-3)
+
+
+def test_the_ekf_is_symmetric_under_the_mirror():
+    ekf = make_filter(DockingConfig())
+    g = torch.Generator().manual_seed(1)
+    n = 64
+    mean = torch.cat(
+        (
+            torch.rand(n, 2, generator=g) * 20 - torch.tensor([25.0, 10.0]),
+            torch.rand(n, 3, generator=g) - 0.5,
+        ),
+        -1,
+    )
+    a = torch.randn(n, 5, 5, generator=g)
+    cov = a @ a.transpose(-1, -2) * 0.01 + torch.eye(5) * 0.01
+    action = torch.rand(n, 2, generator=g) * torch.tensor([1.2, 0.6]) - torch.tensor([0.4, 0.3])
+    current = torch.rand(n, 2, generator=g) * 0.6 - 0.3
+    from dockingrl.transforms.ekf import measurement_function
+
+    z = measurement_function(mean, current) + 0.01 * torch.randn(n, 6, generator=g)
+    Q, R = ekf.noise_covariances(mean, action, z, torch.zeros(n))
+    out = ekf_step(mean, cov, action, z, current, Q, R, 0.2, diagonal=True)
+    S = torch.diag(STATE_SIGNS)
+    obs_signs = mirror_signs("noise")
+    mirrored = ekf_step(
+        mean * STATE_SIGNS,
+        S @ cov @ S,
+        action * PAIR,
+        z * obs_signs,
+        current * PAIR,
+        Q,
+        R,
+        0.2,
+        diagonal=True,
+    )
+    torch.testing.assert_close(mirrored[0], out[0] * STATE_SIGNS, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(mirrored[1], S @ out[1] @ S, rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(mirrored[2], out[2] * obs_signs, rtol=1e-4, atol=1e-5)
+
+
+def test_mirror_signs_follow_the_observation_layout():
+    assert mirror_signs("compound").tolist() == [1, -1, -1, 1, -1, -1] * 2
+    assert len(mirror_signs("compound", observe_current=True, observe_command=True)) == 16
+    with pytest.raises(ValueError, match="unknown scenario"):
+        mirror_signs("noisy")
+    with pytest.raises(ValueError, match="mirror signs"):
+        td = make_env("compound", 2, seed=0).rollout(3)
+        mirror_transitions(td, mirror_signs("noise"))
+
+
+def test_mirror_augment_stores_each_transition_twice(tmp_path):
+    from dockingrl.agents.algorithms import make_agent
+
+    env = make_env("compound", 4, seed=0, observe_command=True)
+    cfg = make_config(
+        "sac", "paper", hidden=(32, 32), batch_size=16, observe_command=True, mirror_augment=True
+    )
+    agent = make_agent(cfg, 14, env.action_spec[0], 30.0)
+    data = env.rollout(10, break_when_any_done=False)  # (4, 10)
+    agent.learn(data, num_updates=2)
+    assert len(agent.replay_buffer) == 80
+    stored = agent.replay_buffer.storage[:80]
+    signs = mirror_signs("compound", observe_command=True)
+    torch.testing.assert_close(stored["observation"][40:], stored["observation"][:40] * signs)
+    torch.testing.assert_close(stored["action"][40:], stored["action"][:40] * PAIR)
+    assert torch.equal(stored["next", "reward"][40:], stored["next", "reward"][:40])
+
+
+def test_training_with_mirror_augment(tmp_path):
+    cfg = smoke_config(
+        "td3",
+        "noise",
+        tmp_path,
+        "mirror",
+        total_steps=256,
+        start_steps=64,
+        frames_per_batch=64,
+        eval_every=256,
+        mirror_augment=True,
+    )
+    assert train(cfg, progress=False)["summary"]["frames"] == 256
+    with pytest.raises(ValueError, match="privileged_critic"):
+        make_config("sac", "paper", mirror_augment=True, privileged_critic=True)
