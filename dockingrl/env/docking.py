@@ -9,6 +9,7 @@ from torchrl.envs import EnvBase
 
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.dynamics import (
+    clip_action,
     noisy_observation,
     observation_from_state,
     pid_thrust,
@@ -338,7 +339,7 @@ class DockingEnv(EnvBase):
                 "action contains NaN or inf; the docking env accepts finite actions only"
             )
         action = action.to(device=self.device, dtype=self.dtype)
-        return torch.maximum(torch.minimum(action, self._action_high), self._action_low)
+        return clip_action(action, self._action_low, self._action_high)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = self._validated_action(tensordict.get("action"))

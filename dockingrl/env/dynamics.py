@@ -20,6 +20,13 @@ def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
     return math.pi - torch.remainder(math.pi - angle, TWO_PI)
 
 
+def clip_action(action: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """The command the vehicle applies (eq. 3): ``action`` ``(..., 2)`` clipped to the bounds
+    ``low`` and ``high`` ``(2,)``. The env steps with it; the EKF predicts with it and the
+    previous-command observation reports it, so that both see what the env applied."""
+    return torch.maximum(torch.minimum(action, high), low)
+
+
 def pid_thrust(
     error: torch.Tensor,
     integral: torch.Tensor,

@@ -20,6 +20,8 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
+from dockingrl.env.dynamics import clip_action
+
 
 class PreviousAction(Transform):
     """Writes the action applied at the last step as ``out_key`` (default
@@ -55,8 +57,9 @@ class PreviousAction(Transform):
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get(self.in_keys[0]).to(self.action_low.dtype)
-        applied = torch.maximum(torch.minimum(action, self.action_high), self.action_low)
-        next_tensordict.set(self.out_keys[0], applied)
+        next_tensordict.set(
+            self.out_keys[0], clip_action(action, self.action_low, self.action_high)
+        )
         return next_tensordict
 
     def _reset(

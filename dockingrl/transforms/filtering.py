@@ -14,6 +14,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.utils import _get_reset
 
+from dockingrl.env.dynamics import clip_action
 from dockingrl.transforms.ekf import (
     MEASUREMENT_DIM,
     MEASUREMENT_NOISE_STD,
@@ -376,7 +377,7 @@ class EKFTransform(Transform):
         if self.action_bounds is None:
             return action
         low, high = self.action_bounds.to(action)
-        return torch.maximum(torch.minimum(action, high), low)
+        return clip_action(action, low, high)
 
     def filter_step(self, mean, cov, action, z, current, age):
         """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
