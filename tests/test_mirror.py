@@ -10,12 +10,12 @@ from dockingrl import make_env
 from dockingrl.agents.algorithms import mirror_transitions
 from dockingrl.agents.config import make_config
 from dockingrl.env import DockingConfig
-from dockingrl.scenarios import make_filter, mirror_signs
+from dockingrl.scenarios import MIRROR_PAIR, make_filter, mirror_signs
 from dockingrl.training import train
 from dockingrl.transforms.ekf import ekf_step
 
 STATE_SIGNS = torch.tensor([1.0, -1.0, -1.0, 1.0, -1.0])  # EKF state [x, y, alpha, nu, w]
-PAIR = torch.tensor([1.0, -1.0])
+PAIR = torch.tensor(MIRROR_PAIR)
 
 
 def rollout(env, actions):

@@ -365,23 +365,19 @@ class Agent:
         keys = transition_keys(self.config)
         transitions = self._transitions(data.select(*keys)).reshape(-1)
         self.replay_buffer.extend(transitions)
-        if getattr(self.config, "mirror_augment", False):
-            self.replay_buffer.extend(mirror_transitions(transitions, self._mirror_signs()))
+        cfg = self.config
+        if cfg.mirror_augment:
+            signs = mirror_signs(
+                cfg.scenario,
+                observe_current=cfg.observe_current,
+                observe_command=cfg.observe_command,
+            )
+            self.replay_buffer.extend(mirror_transitions(transitions, signs))
         logs: dict[str, list[float]] = {}
         for _ in range(num_updates):
             for key, value in self._off_policy_update().items():
                 logs.setdefault(key, []).append(value)
         return {k: sum(v) / len(v) for k, v in logs.items()}
-
-    def _mirror_signs(self) -> torch.Tensor:
-        cfg = self.config
-        if "mirror_signs" not in self.extra:
-            self.extra["mirror_signs"] = mirror_signs(
-                cfg.scenario,
-                observe_current=cfg.observe_current,
-                observe_command=cfg.observe_command,
-            )
-        return self.extra["mirror_signs"]
 
     def _transitions(self, data: TensorDictBase) -> TensorDictBase:
         """What the replay buffer stores of ``data``: one-step transitions, or with
