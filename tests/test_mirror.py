@@ -18,16 +18,6 @@ STATE_SIGNS = torch.tensor([1.0, -1.0, -1.0, 1.0, -1.0])  # EKF state [x, y, alp
 PAIR = torch.tensor(MIRROR_PAIR)
 
 
-def rollout(env, actions):
-    td = env.reset()
-    steps = []
-    for action in actions:
-        td = env.step(td.set("action", action))
-        steps.append(td.clone())
-        td = step_mdp(td)
-    return torch.stack(steps, dim=-1)
-
-
 def test_the_env_is_symmetric_under_the_mirror_and_mirror_transitions_maps_one_onto_the_other():
     """A noise-free env started at the mirrored pose and current and driven with the mirrored
     commands gives the mirrored observations (current and previous command included) and
@@ -50,14 +40,15 @@ def test_the_env_is_symmetric_under_the_mirror_and_mirror_transitions_maps_one_o
     )
     env.base_env.set_initial_state(pose, current)
     mirrored.base_env.set_initial_state(pose * torch.tensor([1.0, -1.0, -1.0]), current * PAIR)
-    # a steering behaviour, so that episodes dock
-    actions, td = [], env.reset()
+    # a steering behaviour, so that episodes dock; the mirrored env gets the mirrored command
+    td_a, td_b, steps_a, steps_b = env.reset(), mirrored.reset(), [], []
     for _ in range(steps):
-        psi = td["observation"][:, 1]
-        actions.append(torch.stack((torch.full_like(psi, 0.5), (0.8 * psi).clamp(-0.3, 0.3)), -1))
-        td = step_mdp(env.step(td.set("action", actions[-1])))
-    a = rollout(env, actions)
-    b = rollout(mirrored, [action * PAIR for action in actions])
+        psi = td_a["observation"][:, 1]
+        action = torch.stack((torch.full_like(psi, 0.5), (0.8 * psi).clamp(-0.3, 0.3)), -1)
+        steps_a.append(env.step(td_a.set("action", action)).clone())
+        steps_b.append(mirrored.step(td_b.set("action", action * PAIR)).clone())
+        td_a, td_b = step_mdp(steps_a[-1]), step_mdp(steps_b[-1])
+    a, b = torch.stack(steps_a, dim=-1), torch.stack(steps_b, dim=-1)
     signs = mirror_signs("no_noise", **options)
     assert signs.tolist() == [1, -1, -1, 1, -1, -1, 1, -1, 1, -1]
     m = mirror_transitions(a.select("observation", "action", "next"), signs)
