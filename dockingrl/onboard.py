@@ -24,7 +24,12 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dockingrl.env import DockingConfig
-from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS, make_filter
+from dockingrl.scenarios import (
+    FILTERED_OBSERVATION_KEYS,
+    SCENARIOS,
+    make_filter,
+    observation_layout,
+)
 from dockingrl.transforms.ekf import measurement_function
 from dockingrl.transforms.repeat import check_action_repeat
 
@@ -60,22 +65,21 @@ class OnboardStep(nn.Module):
         super().__init__()
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
         self.observe_current, self.observe_command = observe_current, observe_command
+        self.layout = observation_layout(
+            scenario, observe_current=observe_current, observe_command=observe_command
+        )
         self.action_repeat = check_action_repeat(action_repeat)
 
     def forward(self, z, current, mean, cov, command, age):
-        observation = z
+        parts = {"observation": z, "ocean_current": current}
         if self.ekf is not None:
-            mean, cov, filtered, age = self._filter(z, current, mean, cov, command, age)
-            parts = {"observation": z, "filtered_observation": filtered}
-            keys = FILTERED_OBSERVATION_KEYS[self.scenario]
-            observation = torch.cat([parts[key] for key in keys], -1)
+            mean, cov, parts["filtered_observation"], age = self._filter(
+                z, current, mean, cov, command, age
+            )
         else:
             age = torch.where(age < 0, torch.zeros_like(age), age + 1)
-        if self.observe_current:
-            observation = torch.cat((observation, current), -1)
-        if self.observe_command:
-            previous = torch.where(age == 0, torch.zeros_like(command), command)
-            observation = torch.cat((observation, previous), -1)
+        parts["previous_action"] = torch.where(age == 0, torch.zeros_like(command), command)
+        observation = torch.cat([parts[key] for key in self.layout], -1)
         td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             new_command = self.actor(td)["action"]

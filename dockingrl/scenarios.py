@@ -32,6 +32,31 @@ FILTERED_OBSERVATION_KEYS = {
 MIRROR_OBSERVATION = (1.0, -1.0, -1.0, 1.0, -1.0, -1.0)
 #: ... and on a command ``(v_d, w_d)`` or a current ``(oc_x, oc_y)``: the second entry changes sign
 MIRROR_PAIR = (1.0, -1.0)
+#: every entry the policy's ``observation`` may concatenate, with the mirror's signs on it
+#: (their lengths are the entries' widths)
+OBSERVATION_PARTS = {
+    "observation": MIRROR_OBSERVATION,  # the reading, eq. 2 (raw, or true in ``no_noise``)
+    "filtered_observation": MIRROR_OBSERVATION,  # h(EKF estimate), eq. 34
+    "ocean_current": MIRROR_PAIR,  # ``observe_current``
+    "previous_action": MIRROR_PAIR,  # ``observe_command``
+}
+
+
+def observation_layout(
+    scenario: str, *, observe_current: bool = False, observe_command: bool = False
+) -> tuple[str, ...]:
+    """The entries the policy's ``observation`` concatenates, in order, for ``scenario`` with
+    the options of :func:`make_env`: the scenario's own (``FILTERED_OBSERVATION_KEYS``, or the
+    reading alone), then the current, then the previous command. :func:`make_env`,
+    :func:`mirror_signs` and :class:`dockingrl.onboard.OnboardStep` all read it."""
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
+    keys = FILTERED_OBSERVATION_KEYS.get(scenario, ("observation",))
+    return (
+        keys
+        + (("ocean_current",) if observe_current else ())
+        + (("previous_action",) if observe_command else ())
+    )
 
 
 def mirror_signs(
@@ -46,12 +71,10 @@ def mirror_signs(
     (Sec. 4.1) and the reward (eqs. 4-12: ``e_alpha`` and ``y`` change sign together) are all
     unchanged. So a transition mirrored entry by entry (observations by these signs, the action
     by ``MIRROR_PAIR``, reward and flags as they are) is a transition of the same task."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
-    blocks = 2 if scenario == "compound" else 1
-    signs = list(MIRROR_OBSERVATION) * blocks
-    signs += list(MIRROR_PAIR) * (int(observe_current) + int(observe_command))
-    return torch.tensor(signs)
+    layout = observation_layout(
+        scenario, observe_current=observe_current, observe_command=observe_command
+    )
+    return torch.tensor([sign for key in layout for sign in OBSERVATION_PARTS[key]])
 
 
 def make_filter(config: DockingConfig, **ekf_kwargs) -> EKFTransform:
@@ -111,8 +134,9 @@ def make_env(
             then ``action_repeat`` simulation steps, with their rewards summed. Placed before
             ``transforms``.
     """
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
+    layout = observation_layout(
+        scenario, observe_current=observe_current, observe_command=observe_command
+    )
     config = (config or DockingConfig()).replace(noise=scenario != "no_noise")
     base = DockingEnv(num_envs, config=config, device=device, seed=seed, compile_step=compile)
     stages: list[Transform] = []
@@ -120,16 +144,13 @@ def make_env(
         ekf = make_filter(config, **{"compile": compile, **(ekf_kwargs or {})})
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
-        stages += [ekf, CompoundObservation(list(FILTERED_OBSERVATION_KEYS[scenario]))]
+        stages.append(ekf)
     elif filter_params is not None or ekf_kwargs:
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
-    if observe_current:
-        stages.append(CompoundObservation(["observation", "ocean_current"]))
     if observe_command:
-        stages += [
-            PreviousAction(config.action_low, config.action_high),
-            CompoundObservation(["observation", "previous_action"]),
-        ]
+        stages.append(PreviousAction(config.action_low, config.action_high))
+    if layout != ("observation",):
+        stages.append(CompoundObservation(layout))
     if check_action_repeat(action_repeat) > 1:
         stages.append(ActionRepeat(action_repeat))
     stages += list(transforms)

@@ -6,6 +6,7 @@ from torchrl.envs.utils import check_env_specs
 
 from dockingrl import SCENARIOS, make_env
 from dockingrl.env import DockingConfig, DockingEnv, observation_from_state, wrap_angle
+from dockingrl.scenarios import OBSERVATION_PARTS, observation_layout
 from dockingrl.transforms import CompoundObservation, EKFTransform
 
 
@@ -37,16 +38,30 @@ def test_check_env_specs_all_scenarios(scenario, num_envs):
 
 
 @pytest.mark.parametrize("scenario", ["noise", "compound"])
-def test_observe_current_appends_the_current_last(scenario):
-    env = make_env(scenario, 16, seed=3, observe_current=True)
-    plain = make_env(scenario, 16, seed=3)
+@pytest.mark.parametrize("current,command", [(True, False), (False, True), (True, True)])
+def test_observation_follows_its_layout(scenario, current, command):
+    """The scenario's own entries first (as without the options), then the current, then the
+    previous command, at reset and after a step; the layout's widths give the spec's."""
+    options = {"observe_current": current, "observe_command": command}
+    env, plain = make_env(scenario, 16, seed=3, **options), make_env(scenario, 16, seed=3)
+    layout = observation_layout(scenario, **options)
+    assert layout[-1] == ("previous_action" if command else "ocean_current")
+    widths = [len(OBSERVATION_PARTS[key]) for key in layout]
+    assert env.observation_spec["observation"].shape == (16, sum(widths))
     td, ref = env.reset(), plain.reset()
-    dim = ref["observation"].shape[-1]
-    assert td["observation"].shape == (16, dim + 2)
-    torch.testing.assert_close(td["observation"][:, dim:], td["ocean_current"])
-    torch.testing.assert_close(td["observation"][:, :dim], ref["observation"])
-    td = env.rand_step(td)
-    torch.testing.assert_close(td["next", "observation"][:, dim:], td["next", "ocean_current"])
+    action = torch.tensor([[0.5, 0.1]]).expand(16, 2)
+    for _ in range(2):
+        pieces = td["observation"].split(widths, -1)
+        torch.testing.assert_close(
+            torch.cat(pieces[: len(layout) - current - command], -1), ref["observation"]
+        )
+        for key, piece in zip(layout, pieces, strict=True):
+            if key in ("ocean_current", "previous_action"):
+                torch.testing.assert_close(piece, td[key])
+        td = env.step(td.set("action", action))["next"]
+        ref = plain.step(ref.set("action", action))["next"]
+    if command:
+        torch.testing.assert_close(td["previous_action"], action)
     check_env_specs(env)
 
 
