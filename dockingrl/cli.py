@@ -44,11 +44,12 @@ def footer_text(extra: str = "", device: str | None = None) -> str:
 
 def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
     """``managed_surge`` or the path of a policy saved by training. Returns
-    ``(policy, name, scenario or None, make_env options the policy was trained with)``."""
+    ``(policy, name, scenario or None, make_env options the policy was trained with, its
+    training config as a dict, empty for the controller)``."""
     if spec == "managed_surge":
         from dockingrl.agents.managed_surge import ManagedSurgePolicy
 
-        return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}
+        return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}, {}
     path = Path(spec)
     if not path.exists():
         raise SystemExit(f"error: --policy {spec!r} is neither 'managed_surge' nor a file")
@@ -57,7 +58,37 @@ def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
 
     policy, meta = load_saved(path, device=device)
     options = pipeline_options(meta["config"])
-    return policy, meta.get("algo", "agent"), meta.get("scenario"), options
+    return policy, meta.get("algo", "agent"), meta.get("scenario"), options, meta["config"]
+
+
+def evaluation_world(args: argparse.Namespace, scenario: str, trained: dict) -> tuple[dict, str]:
+    """The env options of ``dockingrl eval`` beyond the policy's pipeline: the USBL noise
+    scales and the filter's ``Q``/``R`` file the policy was trained with (``trained``, its
+    training config), unless the command line sets them; and a line saying what was taken
+    from the policy."""
+    from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
+
+    taken = []
+    scales = []
+    for name in ("range_noise_scale", "bearing_noise_scale"):
+        value = getattr(args, name)
+        if value is None:
+            value = float(trained.get(name, 1.0))
+            if value != 1.0:
+                taken.append(f"{name} {value:g}")
+        scales.append(value)
+    config = DockingConfig(contact_speed_tolerance=args.speed_tolerance).scale_usbl_noise(*scales)
+    kwargs: dict = {"config": config}
+    params = args.filter_params
+    if params is None and scenario in FILTERED_OBSERVATION_KEYS and trained.get("filter_params"):
+        params = trained["filter_params"]
+        taken.append(f"filter_params {params}")
+    if params not in (None, "none"):
+        if not Path(params).is_file():
+            raise SystemExit(f"error: filter parameters {params!r}: no such file")
+        kwargs["filter_params"] = params
+    line = f"as the policy was trained: {', '.join(taken)}" if taken else ""
+    return kwargs, line
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -66,14 +97,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from dockingrl.plots import plot_success_map, plot_trajectories
 
     torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options = load_policy(
+    policy, name, trained_scenario, options, trained = load_policy(
         args.policy, use_filter=args.use_filter, device=args.device
     )
     scenario = args.scenario or trained_scenario or "noise"
-    config = DockingConfig(contact_speed_tolerance=args.speed_tolerance)
-    env_kwargs = {"config": config, "device": args.device, **options}
-    if args.filter_params:
-        env_kwargs["filter_params"] = args.filter_params
+    world, taken = evaluation_world(args, scenario, trained)
+    if taken:
+        print(taken)
+    env_kwargs = {"device": args.device, **options, **world}
     out = Path(args.out) if args.out else None
     start = time.perf_counter()
     metrics = evaluate(
@@ -239,7 +270,19 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help="m/s added to the 0.3 m/s contact-speed limit of the success test",
     )
-    ev.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
+    ev.add_argument(
+        "--filter-params",
+        default=None,
+        help="learned Q/R file for the EKF; default: the agent's training file (if any), "
+        "'none': Table 1's filter",
+    )
+    for sensor in ("range", "bearing"):
+        ev.add_argument(
+            f"--{sensor}-noise-scale",
+            type=float,
+            default=None,
+            help=f"env's USBL {sensor} noise x this; default: the agent's training value (1)",
+        )
     ev.add_argument(
         "--stochastic",
         action="store_true",

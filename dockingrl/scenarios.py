@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -32,6 +33,8 @@ FILTERED_OBSERVATION_KEYS = {
 MIRROR_OBSERVATION = (1.0, -1.0, -1.0, 1.0, -1.0, -1.0)
 #: ... and on a command ``(v_d, w_d)`` or a current ``(oc_x, oc_y)``: the second entry changes sign
 MIRROR_PAIR = (1.0, -1.0)
+#: ... and on the EKF's state ``[x, y, alpha, nu, w]`` (eq. 22)
+MIRROR_STATE = (1.0, -1.0, -1.0, 1.0, -1.0)
 #: every entry the policy's ``observation`` may concatenate, with the mirror's signs on it
 #: (their lengths are the entries' widths)
 OBSERVATION_PARTS = {
@@ -75,6 +78,32 @@ def mirror_signs(
         scenario, observe_current=observe_current, observe_command=observe_command
     )
     return torch.tensor([sign for key in layout for sign in OBSERVATION_PARTS[key]])
+
+
+def check_mirror_symmetric(env: TransformedEnv) -> None:
+    """Raise ``ValueError`` where the task of ``env`` (built by :func:`make_env`) is not
+    symmetric under the mirror of :func:`mirror_signs`: a start area, station or current
+    range not centred on the docking axis, or an EKF whose constant ``Q`` couples states the
+    mirror negates with states it keeps (a learned full ``Q``, ``dockingrl learn-filter``).
+    The manoeuvre and context terms of a learned ``Q`` and ``R`` are diagonal and read
+    mirror-invariant features, so they keep the symmetry."""
+    config = env.base_env.config
+    for name in ("init_y", "init_heading", "dock_y", "ocean_current_range"):
+        low, high = getattr(config, name)
+        if not math.isclose(low, -high, abs_tol=1e-9):
+            raise ValueError(f"not mirror-symmetric: {name} = {(low, high)} is not centred on 0")
+    for stage in env.transform:
+        if isinstance(stage, EKFTransform):
+            with torch.no_grad():
+                Q = stage.process_noise().double()
+            signs = torch.tensor(MIRROR_STATE, dtype=Q.dtype)
+            coupling = (Q * (signs.unsqueeze(-1) * signs) < 0) * Q.abs()
+            if coupling.max() > 1e-6 * Q.diagonal().max():
+                raise ValueError(
+                    "not mirror-symmetric: the filter's Q couples y, heading or yaw rate with "
+                    f"x or surge (largest such entry {coupling.max():.3g}); a learned full Q "
+                    "breaks the mirror"
+                )
 
 
 def make_filter(config: DockingConfig, **ekf_kwargs) -> EKFTransform:

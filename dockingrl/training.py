@@ -23,7 +23,7 @@ from dockingrl.agents.config import CONFIGS, TrainConfig
 from dockingrl.agents.saving import pipeline_options, save_policy
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
-from dockingrl.scenarios import make_env
+from dockingrl.scenarios import check_mirror_symmetric, make_env
 from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
@@ -142,12 +142,8 @@ def env_kwargs(cfg: TrainConfig) -> dict:
     scaling, learned filter parameters, and :func:`pipeline_options`)."""
     from dockingrl.env import DockingConfig
 
-    base = DockingConfig()
     kwargs: dict = {
-        "config": base.replace(
-            range_noise_fraction=base.range_noise_fraction * cfg.range_noise_scale,
-            bearing_noise=base.bearing_noise * cfg.bearing_noise_scale,
-        )
+        "config": DockingConfig().scale_usbl_noise(cfg.range_noise_scale, cfg.bearing_noise_scale)
     }
     if cfg.filter_params:
         kwargs["filter_params"] = cfg.filter_params
@@ -200,6 +196,8 @@ class Trainer:
         self.run_id = run_dir.name.replace("__", "-")[-60:]
         self.env_kwargs = env_kwargs(cfg)
         probe = make_env(cfg.scenario, 1, seed=0, **self.env_kwargs)
+        if getattr(cfg, "mirror_augment", False):
+            check_mirror_symmetric(probe)
         sim = base_env(probe)
         self.obs_dim = probe.observation_spec["observation"].shape[-1]
         self.action_spec = probe.action_spec[0].clone()

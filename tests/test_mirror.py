@@ -10,11 +10,17 @@ from dockingrl import make_env
 from dockingrl.agents.algorithms import mirror_transitions
 from dockingrl.agents.config import make_config
 from dockingrl.env import DockingConfig
-from dockingrl.scenarios import MIRROR_PAIR, make_filter, mirror_signs
+from dockingrl.scenarios import (
+    MIRROR_PAIR,
+    MIRROR_STATE,
+    check_mirror_symmetric,
+    make_filter,
+    mirror_signs,
+)
 from dockingrl.training import train
 from dockingrl.transforms.ekf import ekf_step
 
-STATE_SIGNS = torch.tensor([1.0, -1.0, -1.0, 1.0, -1.0])  # EKF state [x, y, alpha, nu, w]
+STATE_SIGNS = torch.tensor(MIRROR_STATE)  # EKF state [x, y, alpha, nu, w]
 PAIR = torch.tensor(MIRROR_PAIR)
 
 
@@ -145,3 +151,36 @@ def test_training_with_mirror_augment(tmp_path):
     assert train(cfg, progress=False)["summary"]["frames"] == 256
     with pytest.raises(ValueError, match="privileged_critic"):
         make_config("sac", "paper", mirror_augment=True, privileged_critic=True)
+
+
+def test_mirror_augment_refuses_a_filter_that_breaks_the_symmetry(tmp_path):
+    """A learned Q with a y-x cross term is not mirror-symmetric: training refuses to
+    mirror with it, and accepts the same file with the cross term removed."""
+    from dockingrl.training import Trainer
+
+    ekf = make_filter(DockingConfig())
+    with torch.no_grad():
+        ekf.process_noise.off_diag[0] = 0.5  # the (y, x) entry of Q's Cholesky factor
+    ekf.save_filter_params(tmp_path / "coupled.pt")
+    with torch.no_grad():
+        ekf.process_noise.off_diag.zero_()
+        ekf.process_noise.log_diag.add_(0.3)
+    ekf.save_filter_params(tmp_path / "diagonal.pt")
+    for name, refused in (("coupled", True), ("diagonal", False)):
+        cfg = smoke_config(
+            "sac",
+            "compound",
+            tmp_path,
+            name,
+            filter_params=str(tmp_path / f"{name}.pt"),
+            total_steps=64,
+            mirror_augment=True,
+        )
+        if refused:
+            with pytest.raises(ValueError, match="Q couples"):
+                Trainer(cfg, tmp_path / name, progress=False)
+        else:
+            Trainer(cfg, tmp_path / name, progress=False)
+    config = DockingConfig(init_y=(-7.5, 5.0))
+    with pytest.raises(ValueError, match="init_y"):
+        check_mirror_symmetric(make_env("noise", 1, config=config))

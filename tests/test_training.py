@@ -565,3 +565,46 @@ def test_privileged_critic_run_checkpoints_its_buffer_and_saves_an_observation_o
 
     td = make_env("compound", 3, seed=1).reset().select("observation")
     assert policy(td)["action"].shape == (3, 2)
+
+
+def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys):
+    """``dockingrl eval`` of a policy trained with scaled USBL noise and a learned filter
+    file evaluates it in that world (and reproduces the run's own final evaluation);
+    ``--filter-params none`` and the noise flags put it back in the paper's."""
+    from helpers import smoke_config
+
+    from dockingrl.env import DockingConfig
+    from dockingrl.scenarios import make_filter
+
+    ekf = make_filter(DockingConfig())
+    with torch.no_grad():
+        ekf.measurement_noise.log_std.add_(0.7)
+    ekf.save_filter_params(tmp_path / "filter.pt")
+    cfg = smoke_config(
+        "sac",
+        "compound",
+        tmp_path,
+        "mismatch",
+        total_steps=128,
+        start_steps=64,
+        frames_per_batch=64,
+        eval_every=128,
+        final_eval_episodes=3,
+        range_noise_scale=3.0,
+        filter_params=str(tmp_path / "filter.pt"),
+    )
+    result = train(cfg, progress=False)
+    policy = str(tmp_path / "mismatch" / "policy.pt")
+    base = ["eval", "--policy", policy, "--episodes", "3", "--seed", "10000", "--quiet"]
+    assert cli_main([*base, "--out", str(tmp_path / "same")]) == 0
+    said = capsys.readouterr().out
+    assert "as the policy was trained: range_noise_scale 3, filter_params" in said
+    same = json.loads((tmp_path / "same" / "eval.json").read_text())
+    assert same["total_reward"] == result["eval"]["total_reward"]
+    paper = ["--filter-params", "none", "--range-noise-scale", "1", "--out", str(tmp_path / "p")]
+    assert cli_main([*base, *paper]) == 0
+    assert "as the policy was trained" not in capsys.readouterr().out
+    other = json.loads((tmp_path / "p" / "eval.json").read_text())
+    assert other["total_reward"] != same["total_reward"]
+    with pytest.raises(SystemExit, match="no such file"):
+        cli_main([*base, "--filter-params", str(tmp_path / "missing.pt")])

@@ -200,7 +200,8 @@ class OffPolicyConfig(TrainConfig):
     mirror_augment: bool = _doc(
         "store each transition twice in the replay buffer: as collected and mirrored "
         "through the docking axis (y -> -y; the task is symmetric under it, see "
-        "dockingrl.scenarios.mirror_signs; not in the paper)",
+        "dockingrl.scenarios.mirror_signs; not in the paper); each takes two slots of "
+        "buffer_size. Refused where the task is not symmetric (a learned Q with cross terms)",
         default=False,
     )
 

@@ -148,6 +148,15 @@ class DockingConfig:
         """Return a copy with ``changes`` applied (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    def scale_usbl_noise(self, range_scale: float = 1.0, bearing_scale: float = 1.0):
+        """A copy whose USBL range and bearing sigmas (Table 2) are multiplied by these
+        factors: the sensor-mismatch world of ``--range-noise-scale`` and
+        ``--bearing-noise-scale`` (the filter keeps Table 2)."""
+        return self.replace(
+            range_noise_fraction=self.range_noise_fraction * range_scale,
+            bearing_noise=self.bearing_noise * bearing_scale,
+        )
+
     @property
     def action_low(self) -> tuple[float, float]:
         return (self.surge_command_min, -self.yaw_rate_command_max)
