@@ -45,7 +45,7 @@ def footer_text(extra: str = "", device: str | None = None) -> str:
 def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
     """``managed_surge`` or the path of a policy saved by training. Returns
     ``(policy, name, scenario or None, make_env options the policy was trained with, its
-    training config as a dict, empty for the controller)``."""
+    ``info`` from :func:`dockingrl.agents.saving.load_policy`, empty for the controller)``."""
     if spec == "managed_surge":
         from dockingrl.agents.managed_surge import ManagedSurgePolicy
 
@@ -58,16 +58,17 @@ def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
 
     policy, meta = load_saved(path, device=device)
     options = pipeline_options(meta["config"])
-    return policy, meta.get("algo", "agent"), meta.get("scenario"), options, meta["config"]
+    return policy, meta.get("algo", "agent"), meta.get("scenario"), options, meta
 
 
-def evaluation_world(args: argparse.Namespace, scenario: str, trained: dict) -> tuple[dict, str]:
+def evaluation_world(args: argparse.Namespace, scenario: str, info: dict) -> tuple[dict, str]:
     """The env options of ``dockingrl eval`` beyond the policy's pipeline: the USBL noise
-    scales and the filter's ``Q``/``R`` file the policy was trained with (``trained``, its
-    training config), unless the command line sets them; and a line saying what was taken
-    from the policy."""
+    scales and the learned filter the policy was trained with (``info`` of the saved policy),
+    unless the command line sets them; and a line saying what was taken from the policy."""
+    from dockingrl.agents.saving import training_filter
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
+    trained = info.get("config", {})
     taken = []
     scales = []
     for name in ("range_noise_scale", "bearing_noise_scale"):
@@ -80,12 +81,13 @@ def evaluation_world(args: argparse.Namespace, scenario: str, trained: dict) -> 
     config = DockingConfig(contact_speed_tolerance=args.speed_tolerance).scale_usbl_noise(*scales)
     kwargs: dict = {"config": config}
     params = args.filter_params
-    if params is None and scenario in FILTERED_OBSERVATION_KEYS and trained.get("filter_params"):
-        params = trained["filter_params"]
-        taken.append(f"filter_params {params}")
-    if params not in (None, "none"):
-        if not Path(params).is_file():
-            raise SystemExit(f"error: filter parameters {params!r}: no such file")
+    if params is None and scenario in FILTERED_OBSERVATION_KEYS and info:
+        params = training_filter(info)
+        if params is not None:
+            taken.append(f"filter_params {trained.get('filter_params')}")
+    if isinstance(params, str) and params != "none" and not Path(params).is_file():
+        raise SystemExit(f"error: filter parameters {params!r}: no such file")
+    if params is not None and params != "none":
         kwargs["filter_params"] = params
     line = f"as the policy was trained: {', '.join(taken)}" if taken else ""
     return kwargs, line

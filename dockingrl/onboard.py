@@ -151,11 +151,11 @@ class OnboardPolicy(nn.Module):
         """Load a policy saved by training (``policy.pt``); its scenario, its
         ``--observe-current``, ``--observe-command`` and ``--action-repeat`` and, unless
         ``filter_params`` is given, its training ``--filter-params`` come with it."""
-        from dockingrl.agents.saving import load_policy, pipeline_options
+        from dockingrl.agents.saving import load_policy, pipeline_options, training_filter
 
         actor, info = load_policy(path, device=device)
         config = info["config"]
-        params = filter_params if filter_params is not None else config.get("filter_params") or None
+        params = filter_params if filter_params is not None else training_filter(info)
         policy = cls(
             actor,
             info["scenario"],

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import torch
@@ -121,7 +121,7 @@ def make_env(
     seed: int | None = None,
     device: torch.device | str = "cpu",
     config: DockingConfig | None = None,
-    filter_params: str | Path | None = None,
+    filter_params: str | Path | Mapping | None = None,
     ekf_kwargs: dict | None = None,
     transforms: Sequence[Transform] = (),
     compile: bool = False,
@@ -144,7 +144,9 @@ def make_env(
         seed: env seed (see :class:`DockingEnv`).
         device: torch device.
         config: env constants; ``noise`` is set by the scenario.
-        filter_params: a file of learned ``Q`` and ``R`` (``train/learn_filter.py``).
+        filter_params: learned ``Q`` and ``R`` (``dockingrl learn-filter``): a file, or its
+            payload (:func:`~dockingrl.transforms.params.read_filter_params`; a saved
+            policy carries its own).
         ekf_kwargs: extra :class:`EKFTransform` options (e.g. ``learnable=True``).
         transforms: more transforms appended after the scenario's own (e.g. a normaliser).
         compile: ``torch.compile`` the simulation and filter steps (faster for thousands of

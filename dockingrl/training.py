@@ -25,6 +25,7 @@ from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import check_mirror_symmetric, make_env
 from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
+from dockingrl.transforms.params import read_filter_params
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
 
@@ -146,7 +147,7 @@ def env_kwargs(cfg: TrainConfig) -> dict:
         "config": DockingConfig().scale_usbl_noise(cfg.range_noise_scale, cfg.bearing_noise_scale)
     }
     if cfg.filter_params:
-        kwargs["filter_params"] = cfg.filter_params
+        kwargs["filter_params"] = read_filter_params(cfg.filter_params)
     kwargs.update(pipeline_options(cfg.to_dict()))
     return kwargs
 
@@ -446,6 +447,7 @@ class Trainer:
             self.obs_dim,
             self.action_spec,
             self.max_dist,
+            filter_params=self.env_kwargs.get("filter_params"),
             frames=self.frames,
             **chosen,
         )

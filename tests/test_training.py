@@ -574,11 +574,13 @@ def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys):
     from helpers import smoke_config
 
     from dockingrl.env import DockingConfig
+    from dockingrl.onboard import OnboardPolicy
     from dockingrl.scenarios import make_filter
 
     ekf = make_filter(DockingConfig())
     with torch.no_grad():
         ekf.measurement_noise.log_std.add_(0.7)
+    ekf_log_std = ekf.measurement_noise.log_std.detach().clone()
     ekf.save_filter_params(tmp_path / "filter.pt")
     cfg = smoke_config(
         "sac",
@@ -608,3 +610,11 @@ def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys):
     assert other["total_reward"] != same["total_reward"]
     with pytest.raises(SystemExit, match="no such file"):
         cli_main([*base, "--filter-params", str(tmp_path / "missing.pt")])
+    # the policy carries its filter: with the file gone, eval and the onboard policy still
+    # filter with the learned Q and R
+    (tmp_path / "filter.pt").unlink()
+    assert cli_main([*base, "--out", str(tmp_path / "again")]) == 0
+    again = json.loads((tmp_path / "again" / "eval.json").read_text())
+    assert again["total_reward"] == same["total_reward"]
+    onboard = OnboardPolicy.from_file(policy)
+    torch.testing.assert_close(onboard.step.ekf.measurement_noise.log_std, ekf_log_std)

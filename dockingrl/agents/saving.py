@@ -36,9 +36,13 @@ def save_policy(
     obs_dim: int,
     action_spec: Bounded,
     max_dist: float,
+    filter_params: Mapping | None = None,
     **metadata,
 ) -> Path:
-    """Write the actor's weights with what is needed to rebuild it (atomically)."""
+    """Write the actor's weights with what is needed to rebuild it (atomically), and the
+    payload of the learned filter it was trained with (``filter_params``, from
+    :func:`~dockingrl.transforms.params.read_filter_params`), so that the policy file is whole
+    without the filter's file."""
     payload = {
         "format": FORMAT,
         "algo": config.algo,
@@ -49,6 +53,7 @@ def save_policy(
         "action_high": action_spec.space.high.reshape(-1)[-2:].cpu().tolist(),
         "max_dist": max_dist,
         "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()},
+        "filter_params": None if filter_params is None else dict(filter_params),
         "metadata": metadata,
     }
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
@@ -56,8 +61,11 @@ def save_policy(
 
 def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     """Rebuild a saved actor. Returns ``(actor, info)`` where ``info`` has ``algo``,
-    ``scenario``, ``config`` and ``metadata``. The actor acts deterministically under
-    ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate` sets)."""
+    ``scenario``, ``config``, ``metadata`` and ``filter_params`` (the learned filter's payload
+    it was trained with, or ``None``: Table 1's filter, or a policy saved before policies
+    carried it, whose ``config["filter_params"]`` names the file). The actor acts
+    deterministically under ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate`
+    sets)."""
     from dockingrl.agents.algorithms import build_actor
     from dockingrl.agents.config import CONFIGS
 
@@ -73,4 +81,11 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     actor = build_actor(config, payload["obs_dim"], spec, payload["max_dist"])
     actor.load_state_dict(payload["state_dict"])
     info = {k: payload[k] for k in ("algo", "scenario", "config", "metadata")}
+    info["filter_params"] = payload.get("filter_params")
     return actor.to(device).eval(), info
+
+
+def training_filter(info: Mapping):
+    """The learned filter a loaded policy (``info`` of :func:`load_policy`) was trained with:
+    the payload it carries, else the file its config names, else ``None`` (Table 1's)."""
+    return info.get("filter_params") or info["config"].get("filter_params") or None

@@ -365,11 +365,12 @@ class EKFTransform(Transform):
 
         save_filter_params(self, path)
 
-    def load_filter_params(self, path: str | Path) -> EKFTransform:
-        """Load ``Q`` and ``R``'s parameters written by :meth:`save_filter_params`."""
+    def load_filter_params(self, source) -> EKFTransform:
+        """Load ``Q`` and ``R``'s parameters written by :meth:`save_filter_params`: a file's
+        path, or its payload (:func:`~dockingrl.transforms.params.read_filter_params`)."""
         from dockingrl.transforms.params import load_filter_params
 
-        load_filter_params(self, path)
+        load_filter_params(self, source)
         return self
 
     # -- filtering ------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import torch
@@ -41,9 +42,8 @@ def save_filter_params(transform, path: str | Path, **metadata) -> Path:
     return atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
 
-def load_filter_params(transform, path: str | Path) -> dict:
-    """Load parameters written by :func:`save_filter_params` into ``transform``; returns the
-    stored payload."""
+def read_filter_params(path: str | Path) -> dict:
+    """The payload of a file written by :func:`save_filter_params`, checked."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no filter-parameter file at {path}")
@@ -53,6 +53,19 @@ def load_filter_params(transform, path: str | Path) -> dict:
         raise ValueError(f"{path} is not a dockingrl filter-parameter file: {exc}") from exc
     if not isinstance(payload, dict) or payload.get("format") not in READABLE:
         raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
+    return payload
+
+
+def load_filter_params(transform, source: str | Path | Mapping) -> dict:
+    """Load parameters written by :func:`save_filter_params` into ``transform``, from the file
+    ``source`` or from its payload already read (:func:`read_filter_params`, or the copy a saved
+    policy carries); returns the payload."""
+    if isinstance(source, Mapping):
+        payload = dict(source)
+        if payload.get("format") not in READABLE:
+            raise ValueError(f"not dockingrl filter parameters ({FORMAT})")
+    else:
+        payload = read_filter_params(source)
     process = dict(payload["process_noise"])
     transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in process)
     if payload["format"] == FORMAT_V1:
