@@ -4,7 +4,8 @@
 import pytest
 import torch
 from helpers import smoke_config
-from torchrl.envs.utils import step_mdp
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from dockingrl import make_env
 from dockingrl.agents.algorithms import mirror_transitions
@@ -184,3 +185,74 @@ def test_mirror_augment_refuses_a_filter_that_breaks_the_symmetry(tmp_path):
     config = DockingConfig(init_y=(-7.5, 5.0))
     with pytest.raises(ValueError, match="init_y"):
         check_mirror_symmetric(make_env("noise", 1, config=config))
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_mirror_symmetric_networks_are_exactly_equivariant(algo):
+    """With ``mirror_symmetric`` the actor commands the mirrored command for the mirrored
+    observation and the critic values both alike, at any weights; without it they do not."""
+    from dockingrl.agents.algorithms import make_agent
+
+    options = {"observe_current": True, "observe_command": True}
+    env = make_env("compound", 1, seed=0, **options)
+    signs = mirror_signs("compound", **options)
+    obs = torch.randn(64, 16) * 2
+    mirrored = TensorDict({"observation": obs * signs}, [64])
+    for which in ("all", "actor", "none"):
+        cfg = make_config(algo, "paper", hidden=(32, 32), mirror_symmetric=which, **options)
+        agent = make_agent(cfg, 16, env.action_spec[0], 30.0)
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            action = agent.actor(TensorDict({"observation": obs}, [64]))["action"]
+            action_m = agent.actor(mirrored.clone())["action"]
+        same = torch.allclose(action_m, action * PAIR, atol=1e-6)
+        assert same == (which != "none")
+        if algo == "ppo":
+            critic = agent.loss.critic_network
+            value = critic(TensorDict({"observation": obs}, [64]))["state_value"]
+            value_m = critic(mirrored.clone())["state_value"]
+        else:
+            critic = agent.loss.qvalue_network
+            td = TensorDict({"observation": obs, "action": action}, [64])
+            value = critic(td)["state_action_value"]
+            td_m = TensorDict({"observation": obs * signs, "action": action * PAIR}, [64])
+            value_m = critic(td_m)["state_action_value"]
+        assert torch.allclose(value_m, value, atol=1e-6) == (which == "all")
+    with pytest.raises(ValueError, match="privileged_critic"):
+        make_config("sac", "paper", mirror_symmetric="all", privileged_critic=True)
+    make_config("sac", "paper", mirror_symmetric="actor", privileged_critic=True)
+    with pytest.raises(ValueError, match="valid: none, actor, all"):
+        make_config("sac", "paper", mirror_symmetric="both")
+
+
+def test_a_trained_mirror_symmetric_policy_loads_equivariant(tmp_path):
+    from dockingrl.agents.saving import load_policy
+
+    cfg = smoke_config(
+        "sac",
+        "compound",
+        tmp_path,
+        "sym",
+        total_steps=128,
+        start_steps=64,
+        frames_per_batch=64,
+        eval_every=128,
+        mirror_symmetric="actor",
+        observe_command=True,
+    )
+    train(cfg, progress=False)
+    actor, info = load_policy(tmp_path / "sym" / "policy.pt")
+    assert info["config"]["mirror_symmetric"] == "actor"
+    obs = torch.randn(32, 14)
+    signs = mirror_signs("compound", observe_command=True)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        action = actor(TensorDict({"observation": obs}, [32]))["action"]
+        action_m = actor(TensorDict({"observation": obs * signs}, [32]))["action"]
+    torch.testing.assert_close(action_m, action * PAIR, atol=1e-6, rtol=0)
+    # the onboard program exported from it commands what the actor commands
+    from dockingrl.onboard import OnboardPolicy, export_onboard
+
+    onboard = OnboardPolicy.from_file(tmp_path / "sym" / "policy.pt")
+    program = torch.export.load(export_onboard(onboard, tmp_path / "sym.pt2", batch=2)).module()
+    z, current = torch.randn(2, 6).abs() + 1.0, torch.zeros(2, 2)
+    state = onboard.initial_state(2)
+    torch.testing.assert_close(program(z, current, *state)[0], onboard.step(z, current, *state)[0])

@@ -178,6 +178,54 @@ def mlp(
     return nn.Sequential(ObservationScale(scale), net)
 
 
+class MirrorSymmetric(nn.Module):
+    """``f_sym(x) = (f(x) + s_out * f(s_in * x)) / 2``: ``net`` made exactly equivariant
+    under the mirror ``y -> -y`` (not in the paper).
+
+    ``s_in`` mirrors the input (:func:`dockingrl.scenarios.mirror_signs`, with the action's
+    ``MIRROR_PAIR`` after it for a critic) and ``s_out`` the output: the turn command's
+    pre-squash location changes sign and the rest (surge, the scales, a value) stays, so the
+    actor commands the mirrored command in the mirrored situation and a critic values a
+    transition and its mirror alike, whatever the weights. Averaging over the two-element
+    group is the simplest equivariant network; the task being symmetric
+    (:func:`~dockingrl.scenarios.mirror_signs`), its optimal policy is such a one, and a
+    policy that has learned one side of the docking axis cannot fail the other."""
+
+    def __init__(self, net: nn.Module, in_signs: torch.Tensor, out_signs: torch.Tensor) -> None:
+        super().__init__()
+        self.net = net
+        self.register_buffer("in_signs", torch.as_tensor(in_signs, dtype=torch.float32))
+        self.register_buffer("out_signs", torch.as_tensor(out_signs, dtype=torch.float32))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        both = self.net(torch.stack((x, x * self.in_signs.to(x.dtype))))
+        return 0.5 * (both[0] + both[1] * self.out_signs.to(both.dtype))
+
+
+def mirror_observation_signs(
+    cfg: TrainConfig, obs_dim: int, network: str = "actor"
+) -> torch.Tensor | None:
+    """The observation's mirror signs where ``cfg.mirror_symmetric`` makes ``network``
+    (``actor`` or ``critic``) mirror-symmetric, else ``None``."""
+    if cfg.mirror_symmetric == "none" or (network == "critic" and cfg.mirror_symmetric != "all"):
+        return None
+    signs = mirror_signs(
+        cfg.scenario, observe_current=cfg.observe_current, observe_command=cfg.observe_command
+    )
+    if signs.numel() != obs_dim:
+        raise ValueError(
+            f"mirror_symmetric: the observation of {cfg.scenario!r} has {signs.numel()} "
+            f"entries with these options, the networks read {obs_dim}"
+        )
+    return signs
+
+
+def _symmetric(net: nn.Module, in_signs: torch.Tensor | None, out_signs) -> nn.Module:
+    if in_signs is None:
+        return net
+    return MirrorSymmetric(net, in_signs, torch.as_tensor(out_signs, dtype=torch.float32))
+
+
 def privileged_features(
     true_state: torch.Tensor, ocean_current: torch.Tensor, max_dist: float
 ) -> torch.Tensor:
@@ -193,7 +241,8 @@ class _Critic(nn.Module):
     """Q(o, a): the scaled observation and the action through one MLP. With
     ``privileged_max_dist`` (asymmetric actor-critic) it is Q(o, s, a): the
     :func:`privileged_features` of the simulator's true state and current ``s`` sit between
-    observation and action."""
+    observation and action. With ``mirror`` (the observation's mirror signs) it is
+    :class:`MirrorSymmetric`."""
 
     def __init__(
         self,
@@ -203,17 +252,22 @@ class _Critic(nn.Module):
         scale,
         layer_norm=False,
         privileged_max_dist: float | None = None,
+        mirror: torch.Tensor | None = None,
     ) -> None:
         super().__init__()
         self.privileged_max_dist = privileged_max_dist
         extra = 0 if privileged_max_dist is None else PRIVILEGED_DIM
-        self.net = mlp(
+        net = mlp(
             obs_dim + extra + act_dim,
             1,
             hidden,
             torch.cat((scale, torch.ones(extra + act_dim))),
             layer_norm=layer_norm,
         )
+        if mirror is not None and extra:
+            raise ValueError("a privileged critic cannot be mirror-symmetric")
+        in_signs = None if mirror is None else torch.cat((mirror, torch.tensor(MIRROR_PAIR)))
+        self.net = _symmetric(net, in_signs, (1.0,))
 
     def forward(self, observation: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         *privileged, action = rest
@@ -268,6 +322,7 @@ def make_critic(cfg: OffPolicyConfig, obs_dim: int, act_dim: int, scale, max_dis
             scale,
             cfg.critic_layer_norm,
             privileged_max_dist=max_dist if privileged else None,
+            mirror=mirror_observation_signs(cfg, obs_dim, "critic"),
         ),
         in_keys=["observation", *(PRIVILEGED_KEYS if privileged else ()), "action"],
     )
@@ -283,11 +338,14 @@ def stochastic_actor(
     activation: str = "relu",
     state_independent_scale: bool = False,
     orthogonal_init: bool = False,
+    mirror: torch.Tensor | None = None,
 ):
     """Tanh-Normal actor (SAC, PPO): an MLP gives the loc and, unless
     ``state_independent_scale`` (one learned scale per action, initially 1), the scale too;
     the sample is squashed into the bounds (:class:`BoundedTanhNormal`, TorchRL's
-    ``TanhNormal`` computed without its transform chain)."""
+    ``TanhNormal`` computed without its transform chain). ``mirror``: the observation's mirror
+    signs, for a :class:`MirrorSymmetric` MLP (the turn bounds being symmetric, the squashed
+    turn command changes sign with its loc)."""
     act_dim = action_spec.shape[-1]
     outputs, head = (
         (act_dim, AddStateIndependentNormalScale(act_dim, scale_lb=1e-4))
@@ -296,7 +354,10 @@ def stochastic_actor(
     )
     gain = 0.01 if orthogonal_init else None
     body = mlp(obs_dim, outputs, hidden, scale, activation=activation, orthogonal_gain=gain)
-    net = nn.Sequential(body, head)
+    # the loc's turn entry changes sign under the mirror, the scales do not
+    out_signs = torch.ones(outputs)
+    out_signs[:act_dim] = torch.tensor(MIRROR_PAIR)
+    net = nn.Sequential(_symmetric(body, mirror, out_signs), head)
     return ProbabilisticActor(
         TensorModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],
@@ -308,13 +369,12 @@ def stochastic_actor(
     )
 
 
-def deterministic_actor(obs_dim: int, action_spec: Bounded, hidden, scale):
-    """TD3's actor: an MLP squashed by tanh into the action bounds."""
-    act_dim = action_spec.shape[-1]
+def deterministic_actor(obs_dim: int, action_spec: Bounded, hidden, scale, mirror=None):
+    """TD3's actor: an MLP (:class:`MirrorSymmetric` with ``mirror``, the observation's mirror
+    signs) squashed by tanh into the action bounds."""
+    net = _symmetric(mlp(obs_dim, action_spec.shape[-1], hidden, scale), mirror, MIRROR_PAIR)
     return TensorDictSequential(
-        TensorModule(
-            mlp(obs_dim, act_dim, hidden, scale), in_keys=["observation"], out_keys=["param"]
-        ),
+        TensorModule(net, in_keys=["observation"], out_keys=["param"]),
         TanhModule(in_keys=["param"], out_keys=["action"], spec=action_spec),
     )
 
@@ -322,8 +382,9 @@ def deterministic_actor(obs_dim: int, action_spec: Bounded, hidden, scale):
 def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: float):
     """The policy network of ``cfg.algo`` (what a saved policy holds)."""
     scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
+    mirror = mirror_observation_signs(cfg, obs_dim)
     if cfg.algo == "td3":
-        return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale)
+        return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror)
     ppo_options = (
         {
             "log_prob": True,
@@ -334,7 +395,7 @@ def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: 
         if cfg.algo == "ppo"
         else {}
     )
-    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, **ppo_options)
+    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror=mirror, **ppo_options)
 
 
 @dataclass
@@ -618,6 +679,7 @@ def _make_ppo(cfg: PPOConfig, actor, obs_dim, scale, device) -> Agent:
         activation=cfg.activation,
         orthogonal_gain=1.0 if cfg.orthogonal_init else None,
     )
+    value_net = _symmetric(value_net, mirror_observation_signs(cfg, obs_dim, "critic"), (1.0,))
     critic = QValueModule(value_net, in_keys=["observation"]).to(device)
     advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False)
     loss = ClipPPOLoss(
