@@ -103,6 +103,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         args.policy, use_filter=args.use_filter, device=args.device
     )
     scenario = args.scenario or trained_scenario or "noise"
+    if args.mirrored:
+        if not trained:
+            raise SystemExit("error: --mirrored needs a saved agent (--policy PATH)")
+        from dockingrl.agents.algorithms import MirroredPolicy
+        from dockingrl.scenarios import mirror_signs
+
+        flags = {k: bool(options.get(k)) for k in ("observe_current", "observe_command")}
+        policy, name = MirroredPolicy(policy, mirror_signs(scenario, **flags)), f"{name} mirrored"
     world, taken = evaluation_world(args, scenario, trained)
     if taken:
         print(taken)
@@ -290,6 +298,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="sample the agent's actions as in training instead of taking their mode "
         "(the 500-episode evaluation only; map and trajectories stay deterministic)",
+    )
+    ev.add_argument(
+        "--mirrored",
+        action="store_true",
+        help="evaluate the agent mirrored through the docking axis (y -> -y): a policy that "
+        "treats both sides alike scores the same (dockingrl.agents.algorithms.MirroredPolicy)",
     )
     ev.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     ev.add_argument("--device", default="cpu", help="torch device of the envs and the policy")

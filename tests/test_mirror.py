@@ -1,6 +1,8 @@
 """The task's mirror symmetry (``y -> -y``) and the replay augmentation built on it
 (``--mirror-augment``)."""
 
+import json
+
 import pytest
 import torch
 from helpers import smoke_config
@@ -248,6 +250,32 @@ def test_a_trained_mirror_symmetric_policy_loads_equivariant(tmp_path):
         action = actor(TensorDict({"observation": obs}, [32]))["action"]
         action_m = actor(TensorDict({"observation": obs * signs}, [32]))["action"]
     torch.testing.assert_close(action_m, action * PAIR, atol=1e-6, rtol=0)
+    # its mirror commands the same: dockingrl eval --mirrored scores it the same
+    from dockingrl.cli import main as cli_main
+
+    policy = str(tmp_path / "sym" / "policy.pt")
+    for extra in ((), ("--mirrored",)):
+        out = tmp_path / f"eval{len(extra)}"
+        assert (
+            cli_main(
+                [
+                    "eval",
+                    "--policy",
+                    policy,
+                    "--episodes",
+                    "4",
+                    "--quiet",
+                    "--out",
+                    str(out),
+                    *extra,
+                ]
+            )
+            == 0
+        )
+    plain, mirrored = (
+        json.loads((tmp_path / f"eval{i}" / "eval.json").read_text()) for i in (0, 1)
+    )
+    assert plain["total_reward"] == mirrored["total_reward"]
     # the onboard program exported from it commands what the actor commands
     from dockingrl.onboard import OnboardPolicy, export_onboard
 
@@ -256,3 +284,26 @@ def test_a_trained_mirror_symmetric_policy_loads_equivariant(tmp_path):
     z, current = torch.randn(2, 6).abs() + 1.0, torch.zeros(2, 2)
     state = onboard.initial_state(2)
     torch.testing.assert_close(program(z, current, *state)[0], onboard.step(z, current, *state)[0])
+
+
+def test_mirrored_policy(tmp_path):
+    """Mirroring twice gives the policy back; a plain actor's mirror is another policy; a
+    mirror-symmetric actor is its own mirror; ``dockingrl eval --mirrored`` needs an agent."""
+    from dockingrl.agents.algorithms import MirroredPolicy, build_actor
+    from dockingrl.cli import main as cli_main
+
+    env = make_env("compound", 1, seed=0)
+    signs = mirror_signs("compound")
+    obs = TensorDict({"observation": torch.randn(64, 12)}, [64])
+    for which in ("none", "actor"):
+        torch.manual_seed(0)
+        cfg = make_config("sac", "paper", hidden=(32, 32), mirror_symmetric=which)
+        actor = build_actor(cfg, 12, env.action_spec[0], 30.0)
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            action = actor(obs.clone())["action"]
+            once = MirroredPolicy(actor, signs)(obs.clone())["action"]
+            twice = MirroredPolicy(MirroredPolicy(actor, signs), signs)(obs.clone())["action"]
+        torch.testing.assert_close(twice, action)
+        assert torch.equal(once, action) == (which == "actor")
+    with pytest.raises(SystemExit, match="saved agent"):
+        cli_main(["eval", "--mirrored", "--episodes", "2", "--quiet"])

@@ -86,6 +86,28 @@ def mirror_transitions(data: TensorDictBase, observation_signs: torch.Tensor) ->
     return out
 
 
+class MirroredPolicy(nn.Module):
+    """``actor`` mirrored through the docking axis (``y -> -y``, not in the paper): in every
+    situation it commands the mirror of what ``actor`` commands in the mirrored one. The task
+    being symmetric (:func:`dockingrl.scenarios.mirror_signs`), a policy that treats both
+    sides of the axis alike scores the same mirrored; ``dockingrl eval --mirrored`` measures
+    it (and a :class:`MirrorSymmetric` actor is its own mirror)."""
+
+    def __init__(self, actor: nn.Module, observation_signs: torch.Tensor) -> None:
+        super().__init__()
+        self.actor = actor
+        self.register_buffer("observation_signs", torch.as_tensor(observation_signs).float())
+        self.register_buffer("action_signs", torch.tensor(MIRROR_PAIR))
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = tensordict["observation"]
+        mirrored = tensordict.empty()
+        mirrored["observation"] = observation * self.observation_signs.to(observation.dtype)
+        action = self.actor(mirrored)["action"]
+        tensordict["action"] = action * self.action_signs.to(action.dtype)
+        return tensordict
+
+
 def n_step_transitions(data: TensorDictBase, n_steps: int, gamma: float) -> TensorDictBase:
     """n-step transitions (not in the paper) from time-ordered data of shape ``(envs, L)``.
 
