@@ -24,6 +24,7 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dockingrl.env import DockingConfig
+from dockingrl.env.dynamics import clip_action
 from dockingrl.scenarios import (
     FILTERED_OBSERVATION_KEYS,
     SCENARIOS,
@@ -50,7 +51,8 @@ class OnboardStep(nn.Module):
     actor's command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
     the training env held it (:class:`~dockingrl.transforms.ActionRepeat`). With
     ``observe_command`` the actor also reads ``command`` (zeros on an approach's first step),
-    as the training env's :class:`~dockingrl.transforms.PreviousAction` gave it.
+    as the training env's :class:`~dockingrl.transforms.PreviousAction` gave it. The command
+    returned is clipped to ``config``'s bounds (eq. 3), as the env applies it.
     """
 
     def __init__(
@@ -61,9 +63,13 @@ class OnboardStep(nn.Module):
         observe_current: bool,
         action_repeat: int = 1,
         observe_command: bool = False,
+        config: DockingConfig | None = None,
     ) -> None:
         super().__init__()
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
+        config = config or DockingConfig()
+        self.register_buffer("action_low", torch.tensor(config.action_low))
+        self.register_buffer("action_high", torch.tensor(config.action_high))
         self.observe_current, self.observe_command = observe_current, observe_command
         self.layout = observation_layout(
             scenario, observe_current=observe_current, observe_command=observe_command
@@ -83,6 +89,8 @@ class OnboardStep(nn.Module):
         td = TensorDict({"observation": observation}, batch_size=observation.shape[:-1])
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             new_command = self.actor(td)["action"]
+        # what the env applies, and what it reports as the previous command
+        new_command = clip_action(new_command, self.action_low, self.action_high)
         if self.action_repeat == 1:
             return new_command, mean, cov, age
         decide = torch.remainder(age, self.action_repeat) == 0
@@ -136,7 +144,7 @@ class OnboardPolicy(nn.Module):
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
         self.step = OnboardStep(
-            actor, scenario, ekf, observe_current, action_repeat, observe_command
+            actor, scenario, ekf, observe_current, action_repeat, observe_command, config
         )
         self._state: tuple[torch.Tensor, ...] | None = None  # mean, cov, command, age
 

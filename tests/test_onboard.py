@@ -151,3 +151,23 @@ def test_export_cli(tmp_path, capsys):
     for bad in (["--batch", "0"], ["--policy", str(tmp_path / "none.pt")]):
         with pytest.raises(SystemExit):
             cli_main(["export", "--policy", policy, "--out", str(out), *bad])
+
+
+def test_onboard_command_is_clipped_to_the_bounds_as_the_env_applies_it():
+    """An actor's command beyond the bounds (eq. 3) comes out clipped, as the env applies it
+    and as ``PreviousAction`` reports it."""
+
+    class Reckless(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.command = torch.nn.Parameter(torch.tensor([2.0, -1.0]))
+
+        def forward(self, td):
+            td["action"] = self.command.expand(td.shape[0], 2)
+            return td
+
+    policy = OnboardPolicy(Reckless(), "noise")
+    command = policy.act(torch.tensor([[20.0, 0.1, 0.0, 0.3, 0.0, 0.0]]), torch.zeros(1, 2))
+    config = DockingConfig()
+    expected = torch.tensor([[config.surge_command_max, -config.yaw_rate_command_max]])
+    assert torch.equal(command, expected)
