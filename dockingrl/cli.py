@@ -85,9 +85,11 @@ def evaluation_world(args: argparse.Namespace, scenario: str, info: dict) -> tup
         params = training_filter(info)
         if params is not None:
             taken.append(f"filter_params {trained.get('filter_params')}")
-    if isinstance(params, str) and params != "none" and not Path(params).is_file():
+    if params == "none":
+        params = None
+    elif isinstance(params, str) and not Path(params).is_file():
         raise SystemExit(f"error: filter parameters {params!r}: no such file")
-    if params is not None and params != "none":
+    if params is not None:
         kwargs["filter_params"] = params
     line = f"as the policy was trained: {', '.join(taken)}" if taken else ""
     return kwargs, line

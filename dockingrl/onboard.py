@@ -70,11 +70,18 @@ class OnboardStep(nn.Module):
         config = config or DockingConfig()
         self.register_buffer("action_low", torch.tensor(config.action_low))
         self.register_buffer("action_high", torch.tensor(config.action_high))
-        self.observe_current, self.observe_command = observe_current, observe_command
         self.layout = observation_layout(
             scenario, observe_current=observe_current, observe_command=observe_command
         )
         self.action_repeat = check_action_repeat(action_repeat)
+
+    @property
+    def observe_current(self) -> bool:
+        return "ocean_current" in self.layout
+
+    @property
+    def observe_command(self) -> bool:
+        return "previous_action" in self.layout
 
     def forward(self, z, current, mean, cov, command, age):
         parts = {"observation": z, "ocean_current": current}

@@ -224,6 +224,13 @@ class MirrorSymmetric(nn.Module):
         return 0.5 * (both[0] + both[1] * self.out_signs.to(both.dtype))
 
 
+def config_mirror_signs(cfg: TrainConfig) -> torch.Tensor:
+    """:func:`~dockingrl.scenarios.mirror_signs` of the observation ``cfg``'s policy reads."""
+    return mirror_signs(
+        cfg.scenario, observe_current=cfg.observe_current, observe_command=cfg.observe_command
+    )
+
+
 def mirror_observation_signs(
     cfg: TrainConfig, obs_dim: int, network: str = "actor"
 ) -> torch.Tensor | None:
@@ -231,9 +238,7 @@ def mirror_observation_signs(
     (``actor`` or ``critic``) mirror-symmetric, else ``None``."""
     if cfg.mirror_symmetric == "none" or (network == "critic" and cfg.mirror_symmetric != "all"):
         return None
-    signs = mirror_signs(
-        cfg.scenario, observe_current=cfg.observe_current, observe_command=cfg.observe_command
-    )
+    signs = config_mirror_signs(cfg)
     if signs.numel() != obs_dim:
         raise ValueError(
             f"mirror_symmetric: the observation of {cfg.scenario!r} has {signs.numel()} "
@@ -448,13 +453,8 @@ class Agent:
         keys = transition_keys(self.config)
         transitions = self._transitions(data.select(*keys)).reshape(-1)
         self.replay_buffer.extend(transitions)
-        cfg = self.config
-        if cfg.mirror_augment:
-            signs = mirror_signs(
-                cfg.scenario,
-                observe_current=cfg.observe_current,
-                observe_command=cfg.observe_command,
-            )
+        if self.config.mirror_augment:
+            signs = config_mirror_signs(self.config)
             self.replay_buffer.extend(mirror_transitions(transitions, signs))
         logs: dict[str, list[float]] = {}
         for _ in range(num_updates):
