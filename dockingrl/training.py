@@ -28,6 +28,9 @@ from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedSt
 from dockingrl.transforms.params import read_filter_params
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
+#: TrainConfig fields that bias the training env's resets (``DockingConfig`` fields of the same
+#: name); evaluation keeps Sec. 4.1's draws
+TRAINING_DRAWS = ("following_current_fraction", "lateral_current_fraction", "near_start_fraction")
 
 
 class TrainingInterrupted(Exception):
@@ -337,10 +340,10 @@ class Trainer:
     def run(self, logger: RunLogger) -> None:
         cfg = self.cfg
         kwargs = dict(self.env_kwargs)
-        if cfg.following_current_fraction > 0:  # the training draw only; evaluation stays uniform
-            kwargs["config"] = kwargs["config"].replace(
-                following_current_fraction=cfg.following_current_fraction
-            )
+        # the training draws only; evaluation keeps Sec. 4.1's
+        curricula = {name: getattr(cfg, name) for name in TRAINING_DRAWS if getattr(cfg, name) > 0}
+        if curricula:
+            kwargs["config"] = kwargs["config"].replace(**curricula)
         env = make_env(
             cfg.scenario,
             cfg.num_envs,

@@ -238,6 +238,8 @@ def test_out_of_bound_actions_are_clipped():
         ("surge_command_min", 1.0),
         ("max_dist", float("nan")),
         ("following_current_fraction", 1.5),
+        ("lateral_current_fraction", -0.1),
+        ("near_start_fraction", 2.0),
     ],
 )
 def test_impossible_config_names_the_field(field, value):
@@ -279,3 +281,25 @@ def test_following_current_fraction_biases_only_the_training_draw():
     torch.testing.assert_close(oc[:, 1], plain[:, 1])  # oc_y untouched
     half = DockingEnv(n, config=DockingConfig(following_current_fraction=0.5), seed=7).reset()
     assert float((half["ocean_current"][:, 0] > 0).double().mean()) == pytest.approx(0.75, abs=0.04)
+
+
+def test_lateral_current_and_near_start_fractions_bias_only_their_draws():
+    n = 4000
+    plain = DockingEnv(n, seed=7).reset()
+    config = DockingConfig(lateral_current_fraction=1.0, near_start_fraction=0.5)
+    biased = DockingEnv(n, config=config, seed=7).reset()
+    oc, plain_oc = biased["ocean_current"], plain["ocean_current"]
+    torch.testing.assert_close(oc[:, 0], plain_oc[:, 0])  # oc_x untouched
+    assert float(oc[:, 1].abs().min()) >= 0.15 and float(oc[:, 1].abs().max()) <= 0.3
+    torch.testing.assert_close(torch.sign(oc[:, 1]), torch.sign(plain_oc[:, 1]))  # sign kept
+    assert float(oc[:, 1].abs().mean()) == pytest.approx(0.225, abs=0.005)  # uniform there
+    pose = biased["true_state"][:, :3]
+    near = pose[:, 0] > -10.0
+    assert float(near.double().mean()) == pytest.approx(0.5, abs=0.03)
+    assert float(pose[near, 0].min()) >= -8.0 and float(pose[near, 0].max()) <= -3.0
+    assert float(pose[near, 1].abs().max()) <= 3.0
+    far = plain["true_state"][~near, :3]
+    torch.testing.assert_close(pose[~near], far)  # the other starts are Sec. 4.1's
+    torch.testing.assert_close(pose[:, 2], plain["true_state"][:, 2])  # headings as drawn
+    with pytest.raises(ValueError, match="near_start_x"):
+        DockingConfig(near_start_fraction=0.1, near_start_x=(-3.0, -0.5))

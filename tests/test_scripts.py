@@ -79,3 +79,25 @@ def test_filter_nees_by_phase_reports_every_band(tmp_path):
     assert all(r["samples"] > 0 and r["nees_mean"] > 0 for r in rows)
     # the hand-tuned filter is overconfident under the x2 noise (README's ablation table)
     assert sum(r["nees_mean"] * r["samples"] for r in rows) / sum(r["samples"] for r in rows) > 5
+
+
+def test_oracle_map_docks_and_reports_each_chosen_cell(tmp_path, capsys):
+    learner = tmp_path / "map.json"
+    grid = [-0.3, 0.0, 0.3]
+    rates = [[10.0 * (3 * i + j) for j in range(3)] for i in range(3)]
+    learner.write_text(json.dumps({"oc_x": grid, "oc_y": grid, "success_rate": rates}))
+    out = tmp_path / "oracle.json"
+    argv = ["--out", str(out), "--cells", "3", "--oc-x-min", "0.3", "--abs-oc-y-min", "0.3"]
+    argv += ["--trials", "1", "--samples", "16", "--horizon", "6", "--iterations", "1"]
+    argv += ["--compare", str(learner)]
+    assert load_script("oracle_map.py").main(argv) == 0
+    report = json.loads(out.read_text())
+    assert [(c["oc_x"], c["oc_y"]) for c in report["cells"]] == [(0.3, -0.3), (0.3, 0.3)]
+    assert shlex.split(report["command"]) == ["python", "scripts/oracle_map.py", *argv]
+    assert report["planner"]["samples"] == 16 and report["trials_per_cell"] == 1
+    for cell in report["cells"]:
+        assert cell["success_rate"] in (0.0, 100.0) and len(cell["docked"]) == 1
+    printed = capsys.readouterr().out
+    assert "learner  20.0 %" in printed and "learner  80.0 %" in printed  # its cells, not others
+    with pytest.raises(SystemExit):
+        load_script("oracle_map.py").main(["--out", str(out), "--oc-x-min", "0.5"])

@@ -95,6 +95,17 @@ class TrainConfig:
         "currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
         default=0.0,
     )
+    lateral_current_fraction: float = _doc(
+        "training envs: probability that a reset draws |oc_y| from [0.15, 0.3] only (strong "
+        "lateral currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
+        default=0.0,
+    )
+    near_start_fraction: float = _doc(
+        "training envs: probability that a reset starts 3-8 m before the station (|y| <= 3 m) "
+        "instead of 25-30 m, to practise the final approach; evaluation keeps Sec. 4.1's starts "
+        "(0: off; not in the paper)",
+        default=0.0,
+    )
     miss_penalty_floor: float = _doc(
         "training reward: a miss (g <= 0) costs at most this on contact instead of 200 |g| "
         "(0: off; not in the paper)",
@@ -167,7 +178,11 @@ class TrainConfig:
                 "action_repeat",
             ),
             positive=("range_noise_scale", "bearing_noise_scale", "contact_speed_target"),
-            fraction=("following_current_fraction",),
+            fraction=(
+                "following_current_fraction",
+                "lateral_current_fraction",
+                "near_start_fraction",
+            ),
             non_negative=(
                 "checkpoint_every",
                 "contact_speed_penalty",

@@ -53,6 +53,16 @@ class DockingConfig:
     #: (currents that carry the AUV towards the DS, the hard cells of Figure 9); 0 is Sec. 4.1's
     #: uniform draw. A training curriculum, not in the paper; evaluation keeps 0.
     following_current_fraction: float = 0.0
+    #: probability that a reset draws ``|oc_y|`` from the outer half of the range only (strong
+    #: lateral currents, sign kept); 0 is Sec. 4.1's draw. A training curriculum, not in the
+    #: paper; evaluation keeps 0.
+    lateral_current_fraction: float = 0.0
+    #: probability that a reset starts in the near box ``near_start_x`` x ``near_start_y``
+    #: (heading as ``init_heading``, at rest) instead of Sec. 4.1's start area, so that the
+    #: final approach is practised more often. A training curriculum, not in the paper.
+    near_start_fraction: float = 0.0
+    near_start_x: tuple[float, float] = (-8.0, -3.0)  # m
+    near_start_y: tuple[float, float] = (-3.0, 3.0)  # m
 
     # --- sensor noise (Table 2), standard deviations ---------------------------------------
     noise: bool = True  # False gives the true observation (scenario ``no_noise``)
@@ -125,15 +135,21 @@ class DockingConfig:
         ):
             if getattr(self, name) < 0:
                 fail(name, "must be >= 0")
-        if not 0.0 <= self.following_current_fraction <= 1.0:
-            fail("following_current_fraction", "must lie in [0, 1]")
+        for name in (
+            "following_current_fraction",
+            "lateral_current_fraction",
+            "near_start_fraction",
+        ):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                fail(name, "must lie in [0, 1]")
         if self.surge_kp == 0 and self.surge_ki == 0:
             fail("surge_kp", "surge PID needs a proportional or integral gain")
         if self.yaw_kp == 0 and self.yaw_ki == 0:
             fail("yaw_kp", "yaw PID needs a proportional or integral gain")
         if self.surge_command_min >= self.surge_command_max:
             fail("surge_command_min", "must be < surge_command_max")
-        for name in ("init_x", "init_y", "init_heading", "ocean_current_range", "dock_x", "dock_y"):
+        ranges = ("init_x", "init_y", "init_heading", "ocean_current_range", "dock_x", "dock_y")
+        for name in (*ranges, "near_start_x", "near_start_y"):
             low, high = getattr(self, name)
             if not low < high:
                 fail(name, "empty range: needs low < high")
@@ -142,6 +158,12 @@ class DockingConfig:
         if self.dock_x[0] <= self.init_x[1]:
             fail(
                 "dock_x", "the contact box must not overlap the start area (dock_x[0] > init_x[1])"
+            )
+
+        if self.near_start_fraction > 0 and self.dock_x[0] <= self.near_start_x[1]:
+            fail(
+                "near_start_x",
+                "the contact box must not overlap the near start box (dock_x[0] > near_start_x[1])",
             )
 
     def replace(self, **changes) -> DockingConfig:

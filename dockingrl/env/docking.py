@@ -98,7 +98,9 @@ class DockingEnv(EnvBase):
     ## Starting State
 
     ``x ~ U(-30, -25)``, ``y ~ U(-7.5, 7.5)``, ``alpha ~ U(-pi/2, pi/2)``, at rest, ocean
-    current ``oc_x, oc_y ~ U(-0.3, 0.3)``, all independent (Sec. 4.1).
+    current ``oc_x, oc_y ~ U(-0.3, 0.3)``, all independent (Sec. 4.1). Training curricula
+    (not in the paper) bias these draws: ``following_current_fraction``,
+    ``lateral_current_fraction`` and ``near_start_fraction`` of :class:`DockingConfig`.
 
     ## Episode End
 
@@ -252,6 +254,80 @@ class DockingEnv(EnvBase):
         self._pinned_pose = check(pose, 3, "pose")
         self._pinned_current = check(ocean_current, 2, "ocean_current")
 
+    #: the simulator's whole state, as :meth:`get_state` returns it (``step_count`` is int64)
+    STATE_KEYS = ("pose", "velocity", "ocean_current", "integral", "previous_error", "step_count")
+
+    def get_state(self) -> TensorDict:
+        """The simulator's whole state, a copy: ``pose`` ``(n, 3)``, ``velocity`` ``(n, 3)``,
+        ``ocean_current`` ``(n, 2)``, the PID's ``integral`` and ``previous_error`` ``(n, 2)``
+        and ``step_count`` ``(n, 1)``. With :meth:`set_state` and :meth:`simulate` it lets a
+        planner roll the dynamics forward from any state (:mod:`dockingrl.planning`)."""
+        values = (
+            self._pose,
+            self._velocity,
+            self._current,
+            self._integral,
+            self._previous_error,
+            self._step_count,
+        )
+        return TensorDict(
+            {k: v.clone() for k, v in zip(self.STATE_KEYS, values, strict=True)},
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def set_state(self, state: TensorDictBase) -> None:
+        """Continue from ``state`` (as :meth:`get_state` returns it, same batch size)."""
+        missing = [k for k in self.STATE_KEYS if k not in state.keys()]
+        if missing:
+            raise KeyError(f"state lacks {missing}; expected {list(self.STATE_KEYS)}")
+        if tuple(state.batch_size) != tuple(self.batch_size):
+            raise ValueError(
+                f"state batch size {tuple(state.batch_size)} != env's {tuple(self.batch_size)}"
+            )
+        values = []
+        for key in self.STATE_KEYS:
+            value = state[key]
+            dtype = torch.int64 if key == "step_count" else self.dtype
+            value = value.to(device=self.device, dtype=dtype).clone()
+            if key != "step_count" and not bool(torch.isfinite(value).all()):
+                raise ValueError(f"state[{key!r}] must be finite")
+            values.append(value)
+        (
+            self._pose,
+            self._velocity,
+            self._current,
+            self._integral,
+            self._previous_error,
+            self._step_count,
+        ) = values
+
+    def simulate(
+        self, state: TensorDictBase, action: torch.Tensor
+    ) -> tuple[TensorDict, dict[str, torch.Tensor]]:
+        """One noise-free step of the dynamics from ``state`` (any batch size), without
+        touching the env's own state: ``(next_state, out)`` with ``out`` the step's entries
+        (``reward``, ``terminated``, ``success``, ``contact_score``, ``contact_speed``, ...).
+        ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does."""
+        action = clip_action(action.to(self.dtype), self._action_low, self._action_high)
+        pose, velocity, integral, error, step_count, out = self._transition(
+            state["pose"],
+            state["velocity"],
+            state["ocean_current"],
+            state["integral"],
+            state["previous_error"],
+            state["step_count"],
+            action,
+            None,
+        )
+        values = (pose, velocity, state["ocean_current"], integral, error, step_count)
+        next_state = TensorDict(
+            dict(zip(self.STATE_KEYS, values, strict=True)),
+            batch_size=state.batch_size,
+            device=self.device,
+        )
+        return next_state, out
+
     # -- helpers -------------------------------------------------------------------------
     def _observe(self) -> torch.Tensor:
         """Eq. 2 on the true state, plus the Gaussian noise of Table 2 when enabled."""
@@ -294,6 +370,24 @@ class DockingEnv(EnvBase):
             follow = _uniform(0.0, 1.0, n, gen, dev, dtype) < cfg.following_current_fraction
             upper = mid + (current[:, 0] - mid).abs()
             current[:, 0] = torch.where(follow, upper, current[:, 0])
+        if cfg.lateral_current_fraction > 0:
+            # fold |oc_y - mid| into the outer half of the range, sign kept: uniform there
+            low, high = cfg.ocean_current_range
+            mid, half = 0.5 * (low + high), 0.5 * (high - low)
+            strong = _uniform(0.0, 1.0, n, gen, dev, dtype) < cfg.lateral_current_fraction
+            offset = current[:, 1] - mid
+            outer = mid + torch.sign(offset) * (0.5 * half + 0.5 * offset.abs())
+            current[:, 1] = torch.where(strong, outer, current[:, 1])
+        if cfg.near_start_fraction > 0:
+            near = _uniform(0.0, 1.0, n, gen, dev, dtype) < cfg.near_start_fraction
+            near_xy = torch.stack(
+                (
+                    _uniform(*cfg.near_start_x, n, gen, dev, dtype),
+                    _uniform(*cfg.near_start_y, n, gen, dev, dtype),
+                ),
+                dim=-1,
+            )
+            pose[:, :2] = torch.where(near.unsqueeze(-1), near_xy, pose[:, :2])
         if self._pinned_pose is not None:
             pose = self._pinned_pose
         if self._pinned_current is not None:

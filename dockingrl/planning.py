@@ -1,0 +1,196 @@
+"""A privileged planner: what the docking task allows when everything is known.
+
+:class:`PlannerPolicy` reads the simulator's true state (pose, velocity, the PID's memory and
+the ocean current) and chooses each command by model-predictive control: the cross-entropy
+method over piecewise-constant command sequences, rolled through the env's own noise-free
+dynamics (:meth:`~dockingrl.env.DockingEnv.simulate`). It is not a policy a vehicle could run
+(it sees no sensor, it knows the model exactly); it measures the task. Its success over a
+current cell bounds from below what any policy can reach there, so a success map of the
+planner separates the cells a learner fails from the cells nobody docks in under eq. 3's
+command bounds and the 0.3 m/s contact limit.
+
+Not in the paper. ``dockingrl oracle`` runs it (see ``--help``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+
+from dockingrl.env import DockingEnv
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Settings of :class:`PlannerPolicy` (cross-entropy MPC)."""
+
+    #: commands per plan; each is held ``hold`` env steps (20 x 4 x 0.2 s = 16 s ahead)
+    horizon: int = 20
+    #: env steps one command is held
+    hold: int = 4
+    #: command sequences sampled per iteration, per episode
+    samples: int = 256
+    #: cross-entropy iterations per decision
+    iterations: int = 3
+    #: best sequences the next iteration's mean and spread are fitted to
+    elites: int = 24
+    #: starting spread of the samples, as a fraction of each command's half-range
+    init_std: float = 0.5
+    #: floor of that spread
+    min_std: float = 0.05
+    #: cost of each simulated step: ``rho / max_dist`` (eq. 4's distance term, sign flipped)
+    #: times this
+    distance_weight: float = 1.0
+    #: cost of a plan still under way at its end, per metre of range left
+    terminal_weight: float = 2.0
+    #: cost of a successful contact: ``-success_bonus * (1 + g)``
+    success_bonus: float = 1000.0
+    #: cost of a failed contact: ``miss_penalty * (1 + excess speed / v_max + max(-g, 0))``
+    miss_penalty: float = 1000.0
+    #: cost of passing the station's entrance plane (x > 0) beside the funnel; the rollout
+    #: ends there (a vehicle carried past the station by a following current rarely recovers)
+    passed_penalty: float = 1000.0
+    #: seed of the planner's sampling
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "hold", "samples", "iterations", "elites"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if self.elites > self.samples:
+            raise ValueError(f"elites ({self.elites}) must not exceed samples ({self.samples})")
+        if not 0 < self.min_std <= self.init_std:
+            raise ValueError(
+                f"need 0 < min_std <= init_std, got {self.min_std} and {self.init_std}"
+            )
+
+    def replace(self, **changes) -> PlannerConfig:
+        return dataclasses.replace(self, **changes)
+
+
+class PlannerPolicy:
+    """Cross-entropy MPC on the true state of a :class:`DockingEnv` (see the module's text).
+
+    Used as a policy by :func:`dockingrl.evaluation.run_episodes` (and so by ``evaluate``,
+    ``success_map`` and ``trajectories``), which hands it the env through :meth:`bind_env`
+    before the first step. It replans every ``hold`` steps for the episodes not yet done and
+    holds the first command of its plan in between; the rest of the plan warm-starts the next
+    one.
+    """
+
+    def __init__(self, config: PlannerConfig | None = None) -> None:
+        self.config = config or PlannerConfig()
+        self.sim: DockingEnv | None = None
+
+    def bind_env(self, sim: DockingEnv) -> None:
+        """Plan on ``sim``'s true state from its next reset on."""
+        self.sim = sim
+        cfg, dev, dtype = self.config, sim.device, sim.dtype
+        self._low = torch.tensor(sim.config.action_low, device=dev, dtype=dtype)
+        self._high = torch.tensor(sim.config.action_high, device=dev, dtype=dtype)
+        self._mean = torch.zeros(sim.num_envs, cfg.horizon, 2, device=dev, dtype=dtype)
+        self._action = torch.zeros(sim.num_envs, 2, device=dev, dtype=dtype)
+        self._rng = torch.Generator(device=dev)
+        self._rng.manual_seed(cfg.seed)
+        self._held = 0
+
+    def _command(self, unit: torch.Tensor) -> torch.Tensor:
+        """Map ``[-1, 1]`` to the command bounds of eq. 3."""
+        return self._low + (unit + 1.0) * 0.5 * (self._high - self._low)
+
+    def __call__(self, td: TensorDictBase) -> TensorDictBase:
+        if self.sim is None:
+            raise RuntimeError("PlannerPolicy needs its env: call bind_env(env) first")
+        sim = self.sim
+        if td.batch_size != sim.batch_size:
+            raise ValueError(f"expected a batch of {sim.num_envs}, got {tuple(td.batch_size)}")
+        first = bool((td["step_count"] == 0).all())
+        if first:
+            self._mean.zero_()
+            self._held = 0
+        if self._held % self.config.hold == 0:
+            done = td.get("done", None)
+            active = torch.ones(sim.num_envs, dtype=torch.bool, device=sim.device)
+            if done is not None and not first:
+                active = ~done.reshape(-1)
+            index = active.nonzero().squeeze(-1)
+            if index.numel():
+                plan = self.plan(sim.get_state()[index], self._mean[index])
+                self._action[index] = self._command(plan[:, 0])
+                # warm start: the rest of the plan, its last command repeated
+                self._mean[index] = torch.cat((plan[:, 1:], plan[:, -1:]), dim=1)
+        self._held += 1
+        td.set("action", self._action.clone())
+        return td
+
+    @torch.no_grad()
+    def plan(self, state: TensorDictBase, mean: torch.Tensor) -> torch.Tensor:
+        """The best command sequence ``(b, horizon, 2)`` (in ``[-1, 1]`` units) from each of
+        the ``b`` states, by the cross-entropy method started at ``mean``."""
+        cfg = self.config
+        b = state.batch_size[0]
+        std = torch.full_like(mean, cfg.init_std)
+        best = mean.clone()
+        best_cost = torch.full((b,), float("inf"), device=mean.device, dtype=mean.dtype)
+        for _ in range(cfg.iterations):
+            noise = torch.randn(
+                (b, cfg.samples, cfg.horizon, 2),
+                generator=self._rng,
+                device=mean.device,
+                dtype=mean.dtype,
+            )
+            candidates = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
+            candidates[:, 0] = mean  # the warm start itself is always a candidate
+            candidates[:, 1] = best
+            cost = self.rollout_cost(state, candidates)
+            order = cost.argsort(dim=1)
+            elite = torch.gather(
+                candidates, 1, order[:, : cfg.elites, None, None].expand(-1, -1, cfg.horizon, 2)
+            )
+            lowest = torch.gather(cost, 1, order[:, :1]).squeeze(1)
+            better = lowest < best_cost
+            best = torch.where(better[:, None, None], elite[:, 0], best)
+            best_cost = torch.minimum(lowest, best_cost)
+            mean = elite.mean(dim=1)
+            std = elite.std(dim=1).clamp_min(cfg.min_std)
+        return best
+
+    def rollout_cost(self, state: TensorDictBase, candidates: torch.Tensor) -> torch.Tensor:
+        """Cost ``(b, k)`` of ``k`` command sequences ``(b, k, horizon, 2)`` from ``b`` states,
+        rolled through the noise-free dynamics (see :class:`PlannerConfig`)."""
+        cfg, sim = self.config, self.sim
+        b, k = candidates.shape[:2]
+        dock = sim.config
+        state = state.unsqueeze(1).expand(b, k).reshape(b * k).clone()
+        commands = self._command(candidates).reshape(b * k, cfg.horizon, 2)
+        cost = torch.zeros(b * k, device=candidates.device, dtype=candidates.dtype)
+        active = torch.ones(b * k, dtype=torch.bool, device=candidates.device)
+        speed_max = dock.entry_speed_max + dock.contact_speed_tolerance
+        for h in range(cfg.horizon):
+            for _ in range(cfg.hold):
+                state, out = sim.simulate(state, commands[:, h])
+                x, y = state["pose"][:, 0], state["pose"][:, 1]
+                rho = torch.sqrt(x * x + y * y)
+                contact = out["terminated"].squeeze(-1) & active
+                success = out["success"].squeeze(-1)
+                score = out["contact_score"].squeeze(-1)
+                speed = out["contact_speed"].squeeze(-1)
+                miss = cfg.miss_penalty * (
+                    1.0 + (speed - speed_max).clamp_min(0.0) / speed_max + (-score).clamp_min(0)
+                )
+                outcome = torch.where(success, -cfg.success_bonus * (1.0 + score), miss)
+                passed = active & ~contact & (x > dock.dock_x[1])
+                step = torch.where(
+                    passed, cfg.passed_penalty, cfg.distance_weight * rho / dock.max_dist
+                )
+                cost = cost + torch.where(contact, outcome, torch.where(active, step, 0.0))
+                active = active & ~contact & ~passed
+            if not bool(active.any()):
+                break
+        x, y = state["pose"][:, 0], state["pose"][:, 1]
+        cost = cost + torch.where(active, cfg.terminal_weight * torch.sqrt(x * x + y * y), 0.0)
+        return cost.reshape(b, k)
