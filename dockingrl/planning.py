@@ -21,6 +21,7 @@ import torch
 from tensordict import TensorDictBase
 
 from dockingrl.env import DockingEnv
+from dockingrl.env.reward import distance_reward
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class PlannerConfig:
     #: cross-entropy iterations per decision
     iterations: int = 3
     #: best sequences the next iteration's mean and spread are fitted to
-    elites: int = 24
+    elites: int = 25
     #: starting spread of the samples, as a fraction of each command's half-range
     init_std: float = 0.5
     #: floor of that spread
@@ -173,8 +174,8 @@ class PlannerPolicy:
         for h in range(cfg.horizon):
             for _ in range(cfg.hold):
                 state, out = sim.simulate(state, commands[:, h])
-                x, y = state["pose"][:, 0], state["pose"][:, 1]
-                rho = torch.sqrt(x * x + y * y)
+                x = state["pose"][:, 0]
+                rho = out["observation"][:, 0]  # noise-free: eq. 2's range
                 contact = out["terminated"].squeeze(-1) & active
                 success = out["success"].squeeze(-1)
                 score = out["contact_score"].squeeze(-1)
@@ -185,12 +186,13 @@ class PlannerPolicy:
                 outcome = torch.where(success, -cfg.success_bonus * (1.0 + score), miss)
                 passed = active & ~contact & (x > dock.dock_x[1])
                 step = torch.where(
-                    passed, cfg.passed_penalty, cfg.distance_weight * rho / dock.max_dist
+                    passed,
+                    cfg.passed_penalty,
+                    -cfg.distance_weight * distance_reward(rho, dock.max_dist),
                 )
                 cost = cost + torch.where(contact, outcome, torch.where(active, step, 0.0))
                 active = active & ~contact & ~passed
             if not bool(active.any()):
                 break
-        x, y = state["pose"][:, 0], state["pose"][:, 1]
-        cost = cost + torch.where(active, cfg.terminal_weight * torch.sqrt(x * x + y * y), 0.0)
+        cost = cost + torch.where(active, cfg.terminal_weight * rho, 0.0)
         return cost.reshape(b, k)

@@ -27,7 +27,7 @@ def _save(fig, path: str | Path, footer: str | None = None) -> Path:
 
 def plot_success_map(result: dict, path: str | Path, *, title: str = "", footer: str = "") -> Path:
     """Heat map of success rate over the ocean-current grid (Figure 9)."""
-    rate = np.asarray(result["success_rate"])
+    rate = np.asarray(result["success_rate"], dtype=float)
     oc_x, oc_y = np.asarray(result["oc_x"]), np.asarray(result["oc_y"])
     fig, ax = plt.subplots(figsize=(5.6, 4.8))
     step = oc_x[1] - oc_x[0] if len(oc_x) > 1 else 0.1
@@ -35,10 +35,11 @@ def plot_success_map(result: dict, path: str | Path, *, title: str = "", footer:
     image = ax.imshow(rate, origin="lower", extent=extent, vmin=0, vmax=100, cmap="RdYlGn")
     for i, y in enumerate(oc_y):
         for j, x in enumerate(oc_x):
-            ax.text(x, y, f"{rate[i, j]:.0f}", ha="center", va="center", fontsize=7)
+            if np.isfinite(rate[i, j]):  # NaN: a cell not run
+                ax.text(x, y, f"{rate[i, j]:.0f}", ha="center", va="center", fontsize=7)
     ax.set_xlabel("ocean current $oc_x$ (m/s)")
     ax.set_ylabel("ocean current $oc_y$ (m/s)")
-    ax.set_title(title or f"success rate (%), mean {rate.mean():.1f} %")
+    ax.set_title(title or f"success rate (%), mean {np.nanmean(rate):.1f} %")
     fig.colorbar(image, ax=ax, label="success rate (%)")
     fig.tight_layout(rect=(0, 0.02, 1, 1))
     return _save(fig, path, footer)
@@ -52,14 +53,24 @@ def _draw_funnel(ax, half_width: float = 0.5, length: float = 2.0) -> None:
 
 
 def plot_trajectories(
-    cases: Sequence[dict], path: str | Path, *, columns: int = 2, footer: str = ""
+    cases: Sequence[dict],
+    path: str | Path,
+    *,
+    columns: int = 2,
+    footer: str = "",
+    window: tuple[float, float, float, float] | None = None,
 ) -> Path:
     """AUV paths with heading arrows, the current as an arrow and ``r_g`` in each title
-    (Figure 10)."""
+    (Figure 10). ``window`` ``(xmin, xmax, ymin, ymax)`` shows only that part of each path
+    (the final approach, say); by default the whole path."""
     rows = math.ceil(len(cases) / columns)
     fig, axes = plt.subplots(rows, columns, figsize=(5.2 * columns, 2.8 * rows), squeeze=False)
     for ax, case in zip(axes.ravel(), cases, strict=False):
         path_xya = np.asarray(case["path"])
+        if window is not None:
+            inside = (path_xya[:, 0] >= window[0]) & (path_xya[:, 0] <= window[1])
+            inside &= (path_xya[:, 1] >= window[2]) & (path_xya[:, 1] <= window[3])
+            path_xya = path_xya[inside] if inside.any() else path_xya[-1:]
         x, y, alpha = path_xya[:, 0], path_xya[:, 1], path_xya[:, 2]
         _draw_funnel(ax)
         ax.plot(x, y, color="tab:green", lw=1)
@@ -74,12 +85,19 @@ def plot_trajectories(
             width=0.004,
         )
         oc = case["ocean_current"]
-        xmin, xmax = min(x.min(), -2.5) - 1, max(x.max(), 0.5) + 1
-        ymin, ymax = min(y.min(), -1.5) - 1, max(y.max(), 1.5) + 1
+        if window is None:
+            xmin, xmax = min(x.min(), -2.5) - 1, max(x.max(), 0.5) + 1
+            ymin, ymax = min(y.min(), -1.5) - 1, max(y.max(), 1.5) + 1
+        else:
+            xmin, xmax, ymin, ymax = window
+        # the current's arrow: 15 m per m/s, from 1.5 m inside the corner (in a window: a
+        # 0.3 m/s current spans 15 % of its width)
+        scale = 15.0 if window is None else 0.5 * (xmax - xmin)
+        inset = 1.5 if window is None else 0.15 * (xmax - xmin)
         ax.annotate(
             "",
-            xy=(xmax - 1.5 + 15 * oc[0], ymin + 1.5 + 15 * oc[1]),
-            xytext=(xmax - 1.5, ymin + 1.5),
+            xy=(xmax - inset + scale * oc[0], ymin + inset + scale * oc[1]),
+            xytext=(xmax - inset, ymin + inset),
             arrowprops={"arrowstyle": "->", "color": "red", "lw": 2},
         )
         r_g = case.get("r_g", math.nan)

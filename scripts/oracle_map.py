@@ -26,6 +26,7 @@ import torch
 from dockingrl.evaluation import base_env, current_grid, describe_machine, run_episodes
 from dockingrl.io import write_json
 from dockingrl.planning import PlannerConfig, PlannerPolicy
+from dockingrl.plots import plot_success_map, plot_trajectories
 from dockingrl.scenarios import make_env
 
 
@@ -42,6 +43,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iterations", type=int, default=PlannerConfig.iterations)
     parser.add_argument("--horizon", type=int, default=PlannerConfig.horizon)
     parser.add_argument("--compare", default="", help="a learner's success_map.json")
+    parser.add_argument(
+        "--figure",
+        default="",
+        help="also draw PREFIX_map.png (the planner's success per cell) and PREFIX_paths.png "
+        "(the final approach of each cell's first trial)",
+    )
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -68,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     env = make_env("no_noise", len(currents), seed=args.seed)
     base_env(env).set_initial_state(ocean_current=torch.as_tensor(currents))
     start = time.perf_counter()
-    out = run_episodes(planner, env, progress=sys.stderr.isatty())
+    out = run_episodes(planner, env, progress=sys.stderr.isatty(), record_trajectories=True)
     wall = time.perf_counter() - start
     learner = {}
     if args.compare:
@@ -97,10 +104,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"oc = ({x:+.3f}, {y:+.3f})  planner {rows[-1]['success_rate']:5.1f} %{other}")
     rate = float(success.double().mean() * 100)
     print(f"planner success over these cells: {rate:.1f} % ({wall:.0f} s)")
+    command = shlex.join(["python", "scripts/oracle_map.py", *(argv or sys.argv[1:])])
+    if args.figure:
+        draw(args.figure, grid, rows, out, args.trials, base_env(env).config, command, wall)
     write_json(
         args.out,
         {
-            "command": shlex.join(["python", "scripts/oracle_map.py", *(argv or sys.argv[1:])]),
+            "command": command,
             "planner": vars(planner.config),
             "trials_per_cell": args.trials,
             "seed": args.seed,
@@ -111,6 +121,36 @@ def main(argv: list[str] | None = None) -> int:
         },
     )
     return 0
+
+
+def draw(prefix, grid, rows, out, trials, config, command, wall) -> None:
+    """The planner's success per cell (NaN where not run) and each cell's first approach."""
+    index = {round(float(v), 6): i for i, v in enumerate(grid)}
+    rate = np.full((len(grid), len(grid)), np.nan)
+    cases = []
+    for c, row in enumerate(rows):
+        rate[index[round(row["oc_y"], 6)], index[round(row["oc_x"], 6)]] = row["success_rate"]
+        e = c * trials
+        steps = int(out["steps"][e])
+        cases.append(
+            {
+                "ocean_current": (row["oc_x"], row["oc_y"]),
+                "path": out["trajectory"][e, : steps + 1].tolist(),
+                "docked": bool(out["docked"][e]),
+                "success": bool(out["success"][e]),
+                "r_g": float(out["contact_score"][e]) * config.contact_weight
+                if out["docked"][e]
+                else float("nan"),
+                "time_s": steps * config.dt,
+            }
+        )
+    footer = f"{command}  |  {describe_machine('cpu')}, {wall:.0f} s"
+    result = {"oc_x": grid.tolist(), "oc_y": grid.tolist(), "success_rate": rate}
+    title = f"privileged planner, success (%) over {trials} trials per cell"
+    plot_success_map(result, f"{prefix}_map.png", title=title, footer=footer)
+    plot_trajectories(
+        cases, f"{prefix}_paths.png", columns=4, footer=footer, window=(-6.0, 2.0, -4.0, 4.0)
+    )
 
 
 if __name__ == "__main__":

@@ -89,8 +89,10 @@ def test_oracle_map_docks_and_reports_each_chosen_cell(tmp_path, capsys):
     out = tmp_path / "oracle.json"
     argv = ["--out", str(out), "--cells", "3", "--oc-x-min", "0.3", "--abs-oc-y-min", "0.3"]
     argv += ["--trials", "1", "--samples", "16", "--horizon", "6", "--iterations", "1"]
-    argv += ["--compare", str(learner)]
+    argv += ["--compare", str(learner), "--figure", str(tmp_path / "oracle")]
     assert load_script("oracle_map.py").main(argv) == 0
+    for name in ("oracle_map.png", "oracle_paths.png"):
+        assert (tmp_path / name).stat().st_size > 1000
     report = json.loads(out.read_text())
     assert [(c["oc_x"], c["oc_y"]) for c in report["cells"]] == [(0.3, -0.3), (0.3, 0.3)]
     assert shlex.split(report["command"]) == ["python", "scripts/oracle_map.py", *argv]

@@ -254,24 +254,26 @@ class DockingEnv(EnvBase):
         self._pinned_pose = check(pose, 3, "pose")
         self._pinned_current = check(ocean_current, 2, "ocean_current")
 
-    #: the simulator's whole state, as :meth:`get_state` returns it (``step_count`` is int64)
+    #: the simulator's whole state, as :meth:`get_state` returns it (``step_count`` is int64),
+    #: and the attribute holding each entry
     STATE_KEYS = ("pose", "velocity", "ocean_current", "integral", "previous_error", "step_count")
+    _STATE_ATTRIBUTES = (
+        "_pose",
+        "_velocity",
+        "_current",
+        "_integral",
+        "_previous_error",
+        "_step_count",
+    )
 
     def get_state(self) -> TensorDict:
         """The simulator's whole state, a copy: ``pose`` ``(n, 3)``, ``velocity`` ``(n, 3)``,
         ``ocean_current`` ``(n, 2)``, the PID's ``integral`` and ``previous_error`` ``(n, 2)``
         and ``step_count`` ``(n, 1)``. With :meth:`set_state` and :meth:`simulate` it lets a
         planner roll the dynamics forward from any state (:mod:`dockingrl.planning`)."""
-        values = (
-            self._pose,
-            self._velocity,
-            self._current,
-            self._integral,
-            self._previous_error,
-            self._step_count,
-        )
+        pairs = zip(self.STATE_KEYS, self._STATE_ATTRIBUTES, strict=True)
         return TensorDict(
-            {k: v.clone() for k, v in zip(self.STATE_KEYS, values, strict=True)},
+            {key: getattr(self, name).clone() for key, name in pairs},
             batch_size=self.batch_size,
             device=self.device,
         )
@@ -285,22 +287,14 @@ class DockingEnv(EnvBase):
             raise ValueError(
                 f"state batch size {tuple(state.batch_size)} != env's {tuple(self.batch_size)}"
             )
-        values = []
+        values = {}
         for key in self.STATE_KEYS:
-            value = state[key]
             dtype = torch.int64 if key == "step_count" else self.dtype
-            value = value.to(device=self.device, dtype=dtype).clone()
-            if key != "step_count" and not bool(torch.isfinite(value).all()):
+            values[key] = state[key].to(device=self.device, dtype=dtype).clone()
+            if key != "step_count" and not bool(torch.isfinite(values[key]).all()):
                 raise ValueError(f"state[{key!r}] must be finite")
-            values.append(value)
-        (
-            self._pose,
-            self._velocity,
-            self._current,
-            self._integral,
-            self._previous_error,
-            self._step_count,
-        ) = values
+        for key, name in zip(self.STATE_KEYS, self._STATE_ATTRIBUTES, strict=True):
+            setattr(self, name, values[key])
 
     def simulate(
         self, state: TensorDictBase, action: torch.Tensor
