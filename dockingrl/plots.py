@@ -18,7 +18,7 @@ from dockingrl.io import atomic_write  # noqa: E402
 
 def _save(fig, path: str | Path, footer: str | None = None) -> Path:
     if footer:
-        fig.text(0.01, 0.005, footer, fontsize=6, color="0.4", ha="left", va="bottom")
+        fig.text(0.01, 0.005, footer, fontsize=6, color="0.4", ha="left", va="bottom", wrap=True)
     try:
         return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
     finally:

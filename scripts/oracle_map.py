@@ -146,7 +146,7 @@ def draw(prefix, grid, rows, out, trials, config, command, wall) -> None:
         )
     footer = f"{command}  |  {describe_machine('cpu')}, {wall:.0f} s"
     result = {"oc_x": grid.tolist(), "oc_y": grid.tolist(), "success_rate": rate}
-    title = f"privileged planner, success (%) over {trials} trials per cell"
+    title = f"privileged planner: success %, {trials} trials per cell"
     plot_success_map(result, f"{prefix}_map.png", title=title, footer=footer)
     plot_trajectories(
         cases, f"{prefix}_paths.png", columns=4, footer=footer, window=(-6.0, 2.0, -4.0, 4.0)
