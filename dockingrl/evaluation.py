@@ -60,8 +60,8 @@ def run_episodes(
     """Run one episode in every env of the batch at once, with a deterministic policy (a
     TorchRL actor's mode; ``stochastic=True``: its samples, as while training).
 
-    A policy with a ``bind_env(sim)`` method (:class:`~dockingrl.planning.PlannerPolicy`)
-    gets the :class:`DockingEnv` under the transforms before the first step.
+    A policy with a ``bind_env(env)`` method (:class:`~dockingrl.planning.PlannerPolicy`)
+    gets the env before the first step.
 
     Stops when every env is done (at most ``max_steps``); an env that finished keeps stepping
     but its outcome is frozen at its first ``done``.
@@ -75,7 +75,7 @@ def run_episodes(
     sim = base_env(env)
     bind_env = getattr(policy, "bind_env", None)
     if bind_env is not None:  # a privileged planner reads the simulator itself
-        bind_env(sim)
+        bind_env(env)
     n, max_steps = sim.num_envs, sim.config.max_steps
     zeros = torch.zeros(n, device=sim.device)
     active = torch.ones(n, dtype=torch.bool, device=sim.device)

@@ -4,12 +4,14 @@
 the ocean current) and chooses each command by model-predictive control: the cross-entropy
 method over piecewise-constant command sequences, rolled through the env's own noise-free
 dynamics (:meth:`~dockingrl.env.DockingEnv.simulate`). It is not a policy a vehicle could run
-(it sees no sensor, it knows the model exactly); it measures the task. Its success over a
-current cell bounds from below what any policy can reach there, so a success map of the
-planner separates the cells a learner fails from the cells nobody docks in under eq. 3's
-command bounds and the 0.3 m/s contact limit.
+(it sees no sensor, it knows the model exactly); it measures the task. Each of its successes is
+a command sequence within eq. 3's bounds that docks, as the env scores it, from that start in
+that current: where it docks, the task can be done with full information. Where it fails, the
+planner may be what falls short (a learner may still dock there), so its success over a cell
+is a lower bound on what a full-information controller reaches, not on what a learner reaches
+from noisy sensors.
 
-Not in the paper. ``dockingrl oracle`` runs it (see ``--help``).
+Not in the paper. ``scripts/oracle_map.py`` runs it over current cells.
 """
 
 from __future__ import annotations
@@ -19,9 +21,12 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDictBase
+from torchrl.envs import Compose, EnvBase, TransformedEnv
 
 from dockingrl.env import DockingEnv
 from dockingrl.env.reward import distance_reward
+from dockingrl.evaluation import base_env
+from dockingrl.transforms import ActionRepeat
 
 
 @dataclass(frozen=True)
@@ -49,7 +54,8 @@ class PlannerConfig:
     terminal_weight: float = 2.0
     #: cost of a successful contact: ``-success_bonus * (1 + g)``
     success_bonus: float = 1000.0
-    #: cost of a failed contact: ``miss_penalty * (1 + excess speed / v_max + max(-g, 0))``
+    #: cost of a failed contact: ``miss_penalty * (1 + excess speed / v_max + max(-g, 0))``;
+    #: a rollout that reaches the episode's time limit (``max_steps``) costs ``miss_penalty``
     miss_penalty: float = 1000.0
     #: cost of passing the station's entrance plane (x > 0) beside the funnel; the rollout
     #: ends there (a vehicle carried past the station by a following current rarely recovers)
@@ -62,8 +68,11 @@ class PlannerConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if self.elites > self.samples:
-            raise ValueError(f"elites ({self.elites}) must not exceed samples ({self.samples})")
+        if not 2 <= self.elites <= self.samples:
+            raise ValueError(
+                f"elites must lie in [2, samples={self.samples}] (their spread is fitted), "
+                f"got {self.elites}"
+            )
         if not 0 < self.min_std <= self.init_std:
             raise ValueError(
                 f"need 0 < min_std <= init_std, got {self.min_std} and {self.init_std}"
@@ -78,17 +87,29 @@ class PlannerPolicy:
 
     Used as a policy by :func:`dockingrl.evaluation.run_episodes` (and so by ``evaluate``,
     ``success_map`` and ``trajectories``), which hands it the env through :meth:`bind_env`
-    before the first step. It replans every ``hold`` steps for the episodes not yet done and
-    holds the first command of its plan in between; the rest of the plan warm-starts the next
-    one.
+    before the first step. It replans every ``hold`` steps for the episodes that have not
+    ended and holds the first command of its plan in between; the rest of the plan
+    warm-starts the next one. It is called once per 0.2 s step, so it refuses an env that
+    holds commands itself (``ActionRepeat``).
     """
 
     def __init__(self, config: PlannerConfig | None = None) -> None:
         self.config = config or PlannerConfig()
         self.sim: DockingEnv | None = None
 
-    def bind_env(self, sim: DockingEnv) -> None:
-        """Plan on ``sim``'s true state from its next reset on."""
+    def bind_env(self, env: EnvBase) -> None:
+        """Plan on the true state of the :class:`DockingEnv` under ``env``'s transforms, from
+        its next reset on."""
+        sim = base_env(env)
+        while isinstance(env, TransformedEnv):
+            transform = env.transform
+            parts = transform.transforms if isinstance(transform, Compose) else [transform]
+            if any(isinstance(t, ActionRepeat) for t in parts):
+                raise ValueError(
+                    "PlannerPolicy holds its commands itself (PlannerConfig.hold); "
+                    "evaluate it on an env without action_repeat"
+                )
+            env = env.base_env
         self.sim = sim
         cfg, dev, dtype = self.config, sim.device, sim.dtype
         self._low = torch.tensor(sim.config.action_low, device=dev, dtype=dtype)
@@ -98,6 +119,7 @@ class PlannerPolicy:
         self._rng = torch.Generator(device=dev)
         self._rng.manual_seed(cfg.seed)
         self._held = 0
+        self._ended = torch.zeros(sim.num_envs, dtype=torch.bool, device=dev)
 
     def _command(self, unit: torch.Tensor) -> torch.Tensor:
         """Map ``[-1, 1]`` to the command bounds of eq. 3."""
@@ -113,12 +135,13 @@ class PlannerPolicy:
         if first:
             self._mean.zero_()
             self._held = 0
+            self._ended.zero_()
+        done = td.get("done", None)
+        if done is not None and not first:
+            # sticky: an ended episode's env goes on stepping, and its ``done`` may drop again
+            self._ended |= done.reshape(-1)
         if self._held % self.config.hold == 0:
-            done = td.get("done", None)
-            active = torch.ones(sim.num_envs, dtype=torch.bool, device=sim.device)
-            if done is not None and not first:
-                active = ~done.reshape(-1)
-            index = active.nonzero().squeeze(-1)
+            index = (~self._ended).nonzero().squeeze(-1)
             if index.numel():
                 plan = self.plan(sim.get_state()[index], self._mean[index])
                 self._action[index] = self._command(plan[:, 0])
@@ -185,13 +208,13 @@ class PlannerPolicy:
                 )
                 outcome = torch.where(success, -cfg.success_bonus * (1.0 + score), miss)
                 passed = active & ~contact & (x > dock.dock_x[1])
-                step = torch.where(
-                    passed,
-                    cfg.passed_penalty,
-                    -cfg.distance_weight * distance_reward(rho, dock.max_dist),
-                )
+                # the episode's time limit (max_steps) ends a rollout as a failure
+                timeout = active & ~contact & out["truncated"].squeeze(-1)
+                step = -cfg.distance_weight * distance_reward(rho, dock.max_dist)
+                step = torch.where(timeout, cfg.miss_penalty, step)
+                step = torch.where(passed, cfg.passed_penalty, step)
                 cost = cost + torch.where(contact, outcome, torch.where(active, step, 0.0))
-                active = active & ~contact & ~passed
+                active = active & ~contact & ~passed & ~timeout
             if not bool(active.any()):
                 break
         cost = cost + torch.where(active, cfg.terminal_weight * rho, 0.0)

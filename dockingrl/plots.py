@@ -66,14 +66,16 @@ def plot_trajectories(
     rows = math.ceil(len(cases) / columns)
     fig, axes = plt.subplots(rows, columns, figsize=(5.2 * columns, 2.8 * rows), squeeze=False)
     for ax, case in zip(axes.ravel(), cases, strict=False):
-        path_xya = np.asarray(case["path"])
+        path_xya = np.asarray(case["path"], dtype=float)
         if window is not None:
             inside = (path_xya[:, 0] >= window[0]) & (path_xya[:, 0] <= window[1])
             inside &= (path_xya[:, 1] >= window[2]) & (path_xya[:, 1] <= window[3])
+            ax.plot(*np.where(inside[:, None], path_xya[:, :2], np.nan).T, color="tab:green", lw=1)
             path_xya = path_xya[inside] if inside.any() else path_xya[-1:]
+        else:
+            ax.plot(path_xya[:, 0], path_xya[:, 1], color="tab:green", lw=1)
         x, y, alpha = path_xya[:, 0], path_xya[:, 1], path_xya[:, 2]
         _draw_funnel(ax)
-        ax.plot(x, y, color="tab:green", lw=1)
         every = max(1, len(x) // 25)
         ax.quiver(
             x[::every],

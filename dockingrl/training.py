@@ -21,6 +21,7 @@ from torchrl.envs.utils import ExplorationType
 from dockingrl.agents.algorithms import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
 from dockingrl.agents.saving import pipeline_options, save_policy
+from dockingrl.env import DockingConfig
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import check_mirror_symmetric, make_env
@@ -144,8 +145,6 @@ def read_curves(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
 def env_kwargs(cfg: TrainConfig) -> dict:
     """The :func:`~dockingrl.make_env` options a training config implies (sensor-noise
     scaling, learned filter parameters, and :func:`pipeline_options`)."""
-    from dockingrl.env import DockingConfig
-
     kwargs: dict = {
         "config": DockingConfig().scale_usbl_noise(cfg.range_noise_scale, cfg.bearing_noise_scale)
     }
@@ -155,13 +154,18 @@ def env_kwargs(cfg: TrainConfig) -> dict:
     return kwargs
 
 
+def training_draws(cfg: TrainConfig, config: DockingConfig) -> DockingConfig:
+    """The training env's config: ``config`` with the run's curricula (``TRAINING_DRAWS``)
+    that are on. Evaluations keep ``config``, Sec. 4.1's draws."""
+    curricula = {name: getattr(cfg, name) for name in TRAINING_DRAWS if getattr(cfg, name) > 0}
+    return config.replace(**curricula) if curricula else config
+
+
 def training_transforms(cfg: TrainConfig) -> list:
     """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
     the paper's eq. 12), then the optional terms the agent learns from: the floor on a miss's
     contact reward, the contact-speed penalty, and the end of an episode that passes the
     station."""
-    from dockingrl.env import DockingConfig
-
     base = DockingConfig()
     contact_weight = base.contact_weight
     transforms = [RewardSum()]
@@ -340,10 +344,7 @@ class Trainer:
     def run(self, logger: RunLogger) -> None:
         cfg = self.cfg
         kwargs = dict(self.env_kwargs)
-        # the training draws only; evaluation keeps Sec. 4.1's
-        curricula = {name: getattr(cfg, name) for name in TRAINING_DRAWS if getattr(cfg, name) > 0}
-        if curricula:
-            kwargs["config"] = kwargs["config"].replace(**curricula)
+        kwargs["config"] = training_draws(cfg, kwargs["config"])
         env = make_env(
             cfg.scenario,
             cfg.num_envs,

@@ -2,8 +2,10 @@
 which cells of Figure 9's map can be docked at all under eq. 3's command bounds and the
 0.3 m/s contact limit.
 
-    python scripts/oracle_map.py --oc-x-min 0.075 --abs-oc-y-min 0.225 --trials 5 \\
-        --out results/oracle/hard_cells.json
+    python scripts/oracle_map.py --oc-x-min 0.075 --abs-oc-y-min 0.225 --trials 10 \
+        --samples 256 --horizon 30 --iterations 4 --out results/oracle/hard_cells.json \
+        --figure results/oracle/hard_cells \
+        --compare results/sac_probes/sac_ar4_cmd_u05_mirror/map/success_map.json
 
 Cells are those of ``dockingrl eval --map`` (``--cells`` values per axis in
 ``[-limit, limit]``), optionally only the ones with ``oc_x >= --oc-x-min`` and
@@ -68,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
             samples=args.samples,
             iterations=args.iterations,
             horizon=args.horizon,
-            elites=max(1, args.samples // 10),
+            elites=max(2, args.samples // 10),
             seed=args.seed,
         )
     )

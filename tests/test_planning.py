@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+from torchrl.envs.utils import step_mdp
 
 from dockingrl.env import DockingConfig, DockingEnv
 from dockingrl.evaluation import base_env, run_episodes
@@ -49,7 +50,7 @@ def test_simulate_is_the_env_step_without_noise():
         torch.testing.assert_close(after[key], next_state[key])
 
 
-def test_set_state_refuses_an_incomplete_or_misshaped_state():
+def test_set_state_and_simulate_refuse_bad_input():
     env = DockingEnv(4, seed=0)
     env.reset()
     state = env.get_state()
@@ -57,9 +58,21 @@ def test_set_state_refuses_an_incomplete_or_misshaped_state():
         env.set_state(state.exclude("integral"))
     with pytest.raises(ValueError, match="batch size"):
         env.set_state(state[:2])
-    state["pose"][0, 0] = float("nan")
-    with pytest.raises(ValueError, match="pose"):
-        env.set_state(state)
+    for key, value, match in (
+        ("pose", torch.zeros(4, 2), "shape"),
+        ("step_count", torch.zeros(4, dtype=torch.int64), "shape"),
+        ("step_count", torch.zeros(4, 1), "integers"),
+        ("step_count", torch.full((4, 1), -1), "integers"),
+        ("velocity", torch.full((4, 3), float("nan")), "finite"),
+    ):
+        bad = state.clone()
+        bad.set(key, value) if value.shape == bad[key].shape else bad.__setitem__(key, value)
+        with pytest.raises(ValueError, match=match):
+            env.set_state(bad)
+    with pytest.raises(ValueError, match="NaN"):
+        env.simulate(state, torch.full((4, 2), float("nan")))
+    with pytest.raises(ValueError, match="shape"):
+        env.simulate(state, torch.zeros(4, 3))
 
 
 def test_planner_docks_from_near_the_station():
@@ -79,5 +92,64 @@ def test_planner_needs_its_env_and_a_valid_config():
         PlannerPolicy()(make_env("no_noise", 1).reset())
     with pytest.raises(ValueError, match="elites"):
         PlannerConfig(samples=8, elites=9)
+    with pytest.raises(ValueError, match="elites"):
+        PlannerConfig(samples=8, elites=1)  # one elite has no spread
     with pytest.raises(ValueError, match="horizon"):
         PlannerConfig(horizon=0)
+    with pytest.raises(ValueError, match="action_repeat"):
+        PlannerPolicy().bind_env(make_env("no_noise", 1, action_repeat=4))
+
+
+def bound_planner(pose, current, **config):
+    env = make_env("no_noise", len(pose), seed=0)
+    base_env(env).set_initial_state(pose=torch.tensor(pose), ocean_current=torch.tensor(current))
+    planner = PlannerPolicy(PlannerConfig(**{"samples": 4, "elites": 2, **config}))
+    planner.bind_env(env)
+    return env, planner
+
+
+def test_rollout_cost_ends_at_contact_and_at_the_entrance_plane():
+    # 0: 0.15 m in front of the box, already moving in at 0.2 m/s; 1: beside the station, carried
+    # past its entrance plane by a following current
+    env, planner = bound_planner(
+        [[-0.95, 0.0, 0.0], [-0.3, 2.0, 0.0]], [[0.0, 0.0], [0.3, 0.0]], horizon=5
+    )
+    env.reset()
+    state = env.get_state()
+    state["velocity"][0, 0] = 0.2
+    candidates = torch.zeros(2, 3, 5, 2)  # 0 in [-1, 1] units: 0.2 m/s, no turn
+    candidates[:, 1, 1:] = 1.0  # differ only after contact (within the first command): ...
+    candidates[:, 2, 1:, 1] = -1.0  # ... full surge, or a hard turn
+    cost = planner.rollout_cost(state, candidates)
+    assert float(cost[0, 0]) < -1000  # a successful contact
+    torch.testing.assert_close(cost[0], cost[0, :1].expand(3))  # commands after it are moot
+    assert float(cost[1].min()) >= planner.config.passed_penalty  # passed beside the funnel
+
+
+def test_planner_replans_every_hold_steps_and_stops_for_ended_episodes():
+    env, planner = bound_planner(
+        [[-1.6, 0.0, 0.0], [-20.0, 3.0, 0.5]], [[0.0, 0.0], [0.0, 0.0]], horizon=6, hold=3
+    )
+    calls = []
+    plan = planner.plan
+
+    def counting_plan(state, mean):
+        calls.append(state.batch_size[0])
+        return plan(state, mean)
+
+    planner.plan = counting_plan
+    actions, done = [], []
+    with torch.no_grad():
+        td = env.reset()
+        for _ in range(24):
+            td = planner(td)
+            actions.append(td["action"].clone())
+            td = step_mdp(env.step(td), keep_other=True)
+            done.append(bool(td["done"][0]))
+    actions = torch.stack(actions)
+    for start in range(0, 24, 3):  # each command held for 3 steps
+        torch.testing.assert_close(actions[start : start + 3], actions[start].expand(3, 2, 2))
+    assert len(calls) == 8 and calls[0] == 2  # one plan per 3 steps
+    assert any(done), "the first vehicle should have docked"
+    ended = done.index(True)
+    assert calls[-1] == 1 and all(b == 1 for b in calls[ended // 3 + 1 :])

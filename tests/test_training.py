@@ -274,12 +274,28 @@ def test_impossible_configs_are_refused():
         ("ppo", "epochs", 0),
         ("sac", "checkpoint_every", -1),
         ("sac", "following_current_fraction", 1.5),
+        ("td3", "lateral_current_fraction", -0.5),
+        ("ppo", "near_start_fraction", 2.0),
         ("sac", "contact_speed_penalty", float("nan")),  # "must be finite"
     ],
 )
 def test_out_of_range_hyperparameters_are_refused(algo, field, value):
     with pytest.raises(ValueError, match=f"{field}: must"):
         make_config(algo, num_envs=16, **{field: value})
+
+
+def test_curricula_reach_the_training_env_only():
+    from dockingrl.env import DockingConfig
+    from dockingrl.training import TRAINING_DRAWS, env_kwargs, training_draws
+
+    plain = make_config("sac")
+    base = env_kwargs(plain)["config"]
+    assert training_draws(plain, base) == base == DockingConfig()  # all off: Sec. 4.1
+    values = dict(zip(TRAINING_DRAWS, (0.5, 0.25, 0.1), strict=True))
+    cfg = make_config("sac", **values)
+    train_config = training_draws(cfg, env_kwargs(cfg)["config"])
+    assert {name: getattr(train_config, name) for name in TRAINING_DRAWS} == values
+    assert env_kwargs(cfg)["config"] == DockingConfig()  # what evaluations build on
 
 
 def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):

@@ -279,7 +279,9 @@ class DockingEnv(EnvBase):
         )
 
     def set_state(self, state: TensorDictBase) -> None:
-        """Continue from ``state`` (as :meth:`get_state` returns it, same batch size)."""
+        """Continue from ``state`` (as :meth:`get_state` returns it, same batch size and
+        shapes). This is the bare simulator's state: the transforms above it (the EKF's
+        estimate, the previous command, a held action, reward sums) keep their own."""
         missing = [k for k in self.STATE_KEYS if k not in state.keys()]
         if missing:
             raise KeyError(f"state lacks {missing}; expected {list(self.STATE_KEYS)}")
@@ -288,13 +290,21 @@ class DockingEnv(EnvBase):
                 f"state batch size {tuple(state.batch_size)} != env's {tuple(self.batch_size)}"
             )
         values = {}
-        for key in self.STATE_KEYS:
-            dtype = torch.int64 if key == "step_count" else self.dtype
-            values[key] = state[key].to(device=self.device, dtype=dtype).clone()
-            if key != "step_count" and not bool(torch.isfinite(values[key]).all()):
-                raise ValueError(f"state[{key!r}] must be finite")
         for key, name in zip(self.STATE_KEYS, self._STATE_ATTRIBUTES, strict=True):
-            setattr(self, name, values[key])
+            value, expected = state[key], getattr(self, name)
+            if value.shape != expected.shape:
+                raise ValueError(
+                    f"state[{key!r}] must have shape {tuple(expected.shape)}, "
+                    f"got {tuple(value.shape)}"
+                )
+            if key == "step_count":
+                if value.is_floating_point() or value.is_complex() or bool((value < 0).any()):
+                    raise ValueError("state['step_count'] must hold integers >= 0")
+            elif not bool(torch.isfinite(value).all()):
+                raise ValueError(f"state[{key!r}] must be finite")
+            values[name] = value.to(device=self.device, dtype=expected.dtype).clone()
+        for name, value in values.items():
+            setattr(self, name, value)
 
     def simulate(
         self, state: TensorDictBase, action: torch.Tensor
@@ -303,6 +313,13 @@ class DockingEnv(EnvBase):
         touching the env's own state: ``(next_state, out)`` with ``out`` the step's entries
         (``reward``, ``terminated``, ``success``, ``contact_score``, ``contact_speed``, ...).
         ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does."""
+        if action.shape != (*state.batch_size, ACTION_DIM):
+            raise ValueError(
+                f"action must have shape {(*state.batch_size, ACTION_DIM)}, "
+                f"got {tuple(action.shape)}"
+            )
+        if not bool(torch.isfinite(action).all()):
+            raise ValueError("action contains NaN or inf")
         action = clip_action(action.to(self.dtype), self._action_low, self._action_high)
         pose, velocity, integral, error, step_count, out = self._transition(
             state["pose"],
