@@ -60,6 +60,11 @@ class PlannerConfig:
     #: cost of passing the station's entrance plane (x > 0) beside the funnel; the rollout
     #: ends there (a vehicle carried past the station by a following current rarely recovers)
     passed_penalty: float = 1000.0
+    #: what the plans start from: ``"true"``, the simulator's state; ``"filter"``, the EKF's
+    #: estimate of the pose, surge and yaw rate (``ekf_mean``, eq. 22; sway taken as 0) with
+    #: what the vehicle knows itself (its PID's memory, the current the EKF assumes known):
+    #: the information a vehicle has, in a ``filtered`` or ``compound`` env
+    state: str = "true"
     #: seed of the planner's sampling
     seed: int = 0
 
@@ -73,6 +78,8 @@ class PlannerConfig:
                 f"elites must lie in [2, samples={self.samples}] (their spread is fitted), "
                 f"got {self.elites}"
             )
+        if self.state not in ("true", "filter"):
+            raise ValueError(f"state must be 'true' or 'filter', got {self.state!r}")
         if not 0 < self.min_std <= self.init_std:
             raise ValueError(
                 f"need 0 < min_std <= init_std, got {self.min_std} and {self.init_std}"
@@ -143,13 +150,25 @@ class PlannerPolicy:
         if self._held % self.config.hold == 0:
             index = (~self._ended).nonzero().squeeze(-1)
             if index.numel():
-                plan = self.plan(sim.get_state()[index], self._mean[index])
+                plan = self.plan(self._start_state(td)[index], self._mean[index])
                 self._action[index] = self._command(plan[:, 0])
                 # warm start: the rest of the plan, its last command repeated
                 self._mean[index] = torch.cat((plan[:, 1:], plan[:, -1:]), dim=1)
         self._held += 1
         td.set("action", self._action.clone())
         return td
+
+    def _start_state(self, td: TensorDictBase) -> TensorDictBase:
+        """The state the plans start from (``PlannerConfig.state``)."""
+        state = self.sim.get_state()
+        if self.config.state == "filter":
+            if "ekf_mean" not in td.keys():
+                raise KeyError("PlannerConfig(state='filter') needs a filtered or compound env")
+            estimate = td["ekf_mean"].to(state["pose"].dtype)  # [x, y, alpha, nu, w]
+            state["pose"] = estimate[:, :3].clone()
+            zero = torch.zeros_like(estimate[:, 3])
+            state["velocity"] = torch.stack((estimate[:, 3], zero, estimate[:, 4]), dim=-1)
+        return state
 
     @torch.no_grad()
     def plan(self, state: TensorDictBase, mean: torch.Tensor) -> torch.Tensor:

@@ -10,7 +10,8 @@ which cells of Figure 9's map can be docked at all under eq. 3's command bounds 
 Cells are those of ``dockingrl eval --map`` (``--cells`` values per axis in
 ``[-limit, limit]``), optionally only the ones with ``oc_x >= --oc-x-min`` and
 ``|oc_y| >= --abs-oc-y-min``. Each cell runs ``--trials`` episodes from random start poses
-(``--seed``), the true observation, the planner choosing every command. ``--compare`` prints a
+(``--seed``), the planner choosing every command from the true state or, with ``--state
+filter``, from the EKF's estimate in the compound scenario's noisy world. ``--compare`` prints a
 learner's ``success_map.json`` beside it.
 """
 
@@ -44,6 +45,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samples", type=int, default=PlannerConfig.samples)
     parser.add_argument("--iterations", type=int, default=PlannerConfig.iterations)
     parser.add_argument("--horizon", type=int, default=PlannerConfig.horizon)
+    parser.add_argument(
+        "--state",
+        choices=("true", "filter"),
+        default="true",
+        help="plan from the true state (true observation) or from the EKF's estimate of "
+        "the noisy readings (the compound scenario's world)",
+    )
     parser.add_argument("--compare", default="", help="a learner's success_map.json")
     parser.add_argument(
         "--figure",
@@ -72,9 +80,11 @@ def main(argv: list[str] | None = None) -> int:
             horizon=args.horizon,
             elites=max(2, args.samples // 10),
             seed=args.seed,
+            state=args.state,
         )
     )
-    env = make_env("no_noise", len(currents), seed=args.seed)
+    scenario = "no_noise" if args.state == "true" else "compound"
+    env = make_env(scenario, len(currents), seed=args.seed)
     base_env(env).set_initial_state(ocean_current=torch.as_tensor(currents))
     start = time.perf_counter()
     out = run_episodes(planner, env, progress=sys.stderr.isatty(), record_trajectories=True)
@@ -114,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         {
             "command": command,
             "planner": vars(planner.config),
+            "scenario": scenario,
             "trials_per_cell": args.trials,
             "seed": args.seed,
             "success_rate": rate,

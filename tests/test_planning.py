@@ -87,6 +87,20 @@ def test_planner_docks_from_near_the_station():
     assert (out["contact_speed"] <= 0.3).all()
 
 
+def test_planner_docks_from_the_filter_estimate_in_the_noisy_world():
+    config = PlannerConfig(horizon=8, samples=32, iterations=2, elites=4, seed=0, state="filter")
+    env = make_env("compound", 2, seed=0)
+    base_env(env).set_initial_state(
+        pose=torch.tensor([[-5.0, 1.5, 0.3], [-6.0, -2.0, -0.5]]),
+        ocean_current=torch.tensor([[0.1, -0.1], [-0.1, 0.15]]),
+    )
+    assert run_episodes(PlannerPolicy(config), env)["success"].all()
+    with pytest.raises(KeyError, match="filtered or compound"):
+        run_episodes(PlannerPolicy(config), make_env("noise", 1, seed=0))
+    with pytest.raises(ValueError, match="state"):
+        PlannerConfig(state="oracle")
+
+
 def test_planner_needs_its_env_and_a_valid_config():
     with pytest.raises(RuntimeError, match="bind_env"):
         PlannerPolicy()(make_env("no_noise", 1).reset())
