@@ -60,6 +60,11 @@ class PlannerConfig:
     #: cost of passing the station's entrance plane (x > 0) beside the funnel; the rollout
     #: ends there (a vehicle carried past the station by a following current rarely recovers)
     passed_penalty: float = 1000.0
+    #: margins a planned contact must keep to count as a success in the plan: its ground
+    #: speed at most ``v_max - speed_margin``, its score ``g`` at least ``min_score``; room for
+    #: the estimate's error when planning from the filter (0, 0: the env's own criterion)
+    speed_margin: float = 0.0
+    min_score: float = 0.0
     #: what the plans start from: ``"true"``, the simulator's state; ``"filter"``, the EKF's
     #: estimate of the pose, surge and yaw rate (``ekf_mean``, eq. 22; sway taken as 0) with
     #: what the vehicle knows itself (its PID's memory, the current the EKF assumes known):
@@ -77,6 +82,11 @@ class PlannerConfig:
             raise ValueError(
                 f"elites must lie in [2, samples={self.samples}] (their spread is fitted), "
                 f"got {self.elites}"
+            )
+        if not (0.0 <= self.speed_margin < 0.3 and 0.0 <= self.min_score < 1.0):
+            raise ValueError(
+                f"need 0 <= speed_margin < 0.3 and 0 <= min_score < 1, got "
+                f"{self.speed_margin} and {self.min_score}"
             )
         if self.state not in ("true", "filter"):
             raise ValueError(f"state must be 'true' or 'filter', got {self.state!r}")
@@ -212,18 +222,21 @@ class PlannerPolicy:
         commands = self._command(candidates).reshape(b * k, cfg.horizon, 2)
         cost = torch.zeros(b * k, device=candidates.device, dtype=candidates.dtype)
         active = torch.ones(b * k, dtype=torch.bool, device=candidates.device)
-        speed_max = dock.entry_speed_max + dock.contact_speed_tolerance
+        speed_max = dock.entry_speed_max + dock.contact_speed_tolerance - cfg.speed_margin
         for h in range(cfg.horizon):
             for _ in range(cfg.hold):
                 state, out = sim.simulate(state, commands[:, h])
                 x = state["pose"][:, 0]
                 rho = out["observation"][:, 0]  # noise-free: eq. 2's range
                 contact = out["terminated"].squeeze(-1) & active
-                success = out["success"].squeeze(-1)
                 score = out["contact_score"].squeeze(-1)
                 speed = out["contact_speed"].squeeze(-1)
+                success = out["success"].squeeze(-1) & (speed <= speed_max)
+                success = success & (score >= cfg.min_score)
                 miss = cfg.miss_penalty * (
-                    1.0 + (speed - speed_max).clamp_min(0.0) / speed_max + (-score).clamp_min(0)
+                    1.0
+                    + (speed - speed_max).clamp_min(0.0) / speed_max
+                    + (cfg.min_score - score).clamp_min(0)
                 )
                 outcome = torch.where(success, -cfg.success_bonus * (1.0 + score), miss)
                 passed = active & ~contact & (x > dock.dock_x[1])

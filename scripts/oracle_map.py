@@ -52,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         help="plan from the true state (true observation) or from the EKF's estimate of "
         "the noisy readings (the compound scenario's world)",
     )
+    parser.add_argument("--speed-margin", type=float, default=PlannerConfig.speed_margin)
+    parser.add_argument("--min-score", type=float, default=PlannerConfig.min_score)
     parser.add_argument("--compare", default="", help="a learner's success_map.json")
     parser.add_argument(
         "--figure",
@@ -81,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
             elites=max(2, args.samples // 10),
             seed=args.seed,
             state=args.state,
+            speed_margin=args.speed_margin,
+            min_score=args.min_score,
         )
     )
     scenario = "no_noise" if args.state == "true" else "compound"

@@ -110,6 +110,8 @@ def test_planner_needs_its_env_and_a_valid_config():
         PlannerConfig(samples=8, elites=1)  # one elite has no spread
     with pytest.raises(ValueError, match="horizon"):
         PlannerConfig(horizon=0)
+    with pytest.raises(ValueError, match="speed_margin"):
+        PlannerConfig(speed_margin=0.4)
     with pytest.raises(ValueError, match="action_repeat"):
         PlannerPolicy().bind_env(make_env("no_noise", 1, action_repeat=4))
 
@@ -138,6 +140,9 @@ def test_rollout_cost_ends_at_contact_and_at_the_entrance_plane():
     assert float(cost[0, 0]) < -1000  # a successful contact
     torch.testing.assert_close(cost[0], cost[0, :1].expand(3))  # commands after it are moot
     assert float(cost[1].min()) >= planner.config.passed_penalty  # passed beside the funnel
+    # with a margin of 0.15 m/s the 0.2 m/s contact no longer counts as a success in the plan
+    planner.config = planner.config.replace(speed_margin=0.15)
+    assert float(planner.rollout_cost(state, candidates)[0, 0]) > 1000
 
 
 def test_planner_replans_every_hold_steps_and_stops_for_ended_episodes():
