@@ -370,23 +370,23 @@ def trajectories(
         ocean_current=torch.tensor([c["ocean_current"] for c in cases], dtype=torch.float64),
     )
     outcomes = run_episodes(policy, env, record_trajectories=True)
-    weight = base_env(env).config.contact_weight
-    result = []
-    for i, case in enumerate(cases):
-        steps = int(outcomes["steps"][i])
-        result.append(
-            {
-                **case,
-                "path": outcomes["trajectory"][i, : steps + 1].tolist(),
-                "docked": bool(outcomes["docked"][i]),
-                "success": bool(outcomes["success"][i]),
-                "r_g": float(outcomes["contact_score"][i]) * weight
-                if outcomes["docked"][i]
-                else math.nan,
-                "time_s": steps * base_env(env).config.dt,
-            }
-        )
-    return result
+    config = base_env(env).config
+    return [{**case, **episode_record(outcomes, i, config)} for i, case in enumerate(cases)]
+
+
+def episode_record(outcomes: dict[str, torch.Tensor], i: int, config) -> dict:
+    """Episode ``i`` of :func:`run_episodes`' outcomes (``record_trajectories=True``) as
+    :func:`~dockingrl.plots.plot_trajectories` draws it: its ``path`` of true poses to the
+    end, ``docked``, ``success``, ``r_g`` (eq. 11; NaN without contact) and ``time_s``."""
+    steps = int(outcomes["steps"][i])
+    docked = bool(outcomes["docked"][i])
+    return {
+        "path": outcomes["trajectory"][i, : steps + 1].tolist(),
+        "docked": docked,
+        "success": bool(outcomes["success"][i]),
+        "r_g": float(outcomes["contact_score"][i]) * config.contact_weight if docked else math.nan,
+        "time_s": steps * config.dt,
+    }
 
 
 def table_row(name: str, scenario: str, metrics: dict) -> str:

@@ -26,7 +26,13 @@ import time
 import numpy as np
 import torch
 
-from dockingrl.evaluation import base_env, current_grid, describe_machine, run_episodes
+from dockingrl.evaluation import (
+    base_env,
+    current_grid,
+    describe_machine,
+    episode_record,
+    run_episodes,
+)
 from dockingrl.io import write_json
 from dockingrl.planning import PlannerConfig, PlannerPolicy
 from dockingrl.plots import plot_success_map, plot_trajectories
@@ -147,20 +153,8 @@ def draw(prefix, grid, rows, out, trials, config, command, wall) -> None:
     cases = []
     for c, row in enumerate(rows):
         rate[index[round(row["oc_y"], 6)], index[round(row["oc_x"], 6)]] = row["success_rate"]
-        e = c * trials
-        steps = int(out["steps"][e])
-        cases.append(
-            {
-                "ocean_current": (row["oc_x"], row["oc_y"]),
-                "path": out["trajectory"][e, : steps + 1].tolist(),
-                "docked": bool(out["docked"][e]),
-                "success": bool(out["success"][e]),
-                "r_g": float(out["contact_score"][e]) * config.contact_weight
-                if out["docked"][e]
-                else float("nan"),
-                "time_s": steps * config.dt,
-            }
-        )
+        first = episode_record(out, c * trials, config)
+        cases.append({"ocean_current": (row["oc_x"], row["oc_y"]), **first})
     footer = f"{command}  |  {describe_machine('cpu')}, {wall:.0f} s"
     result = {"oc_x": grid.tolist(), "oc_y": grid.tolist(), "success_rate": rate}
     title = f"privileged planner: success %, {trials} trials per cell"

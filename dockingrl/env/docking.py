@@ -313,14 +313,7 @@ class DockingEnv(EnvBase):
         touching the env's own state: ``(next_state, out)`` with ``out`` the step's entries
         (``reward``, ``terminated``, ``success``, ``contact_score``, ``contact_speed``, ...).
         ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does."""
-        if action.shape != (*state.batch_size, ACTION_DIM):
-            raise ValueError(
-                f"action must have shape {(*state.batch_size, ACTION_DIM)}, "
-                f"got {tuple(action.shape)}"
-            )
-        if not bool(torch.isfinite(action).all()):
-            raise ValueError("action contains NaN or inf")
-        action = clip_action(action.to(self.dtype), self._action_low, self._action_high)
+        action = self._validated_action(action, state.batch_size)
         pose, velocity, integral, error, step_count, out = self._transition(
             state["pose"],
             state["velocity"],
@@ -432,12 +425,16 @@ class DockingEnv(EnvBase):
             contact_speed=zero.clone(),
         )
 
-    def _validated_action(self, action: torch.Tensor) -> torch.Tensor:
-        expected = (self.num_envs, ACTION_DIM)
+    def _validated_action(
+        self, action: torch.Tensor, batch_size: torch.Size | None = None
+    ) -> torch.Tensor:
+        """``action`` checked (shape ``(*batch_size, 2)``, the env's batch by default; finite)
+        and clipped to the bounds of eq. 3, on the env's device and dtype."""
+        batch = tuple(self.batch_size if batch_size is None else batch_size)
+        expected = (*batch, ACTION_DIM)
         if tuple(action.shape) != expected:
             raise ValueError(
-                f"action must have shape {expected} (num_envs, [v_d, w_d]), "
-                f"got {tuple(action.shape)}"
+                f"action must have shape {expected} (batch, [v_d, w_d]), got {tuple(action.shape)}"
             )
         if not bool(torch.isfinite(action).all()):
             raise ValueError(
