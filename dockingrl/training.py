@@ -29,6 +29,9 @@ from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedSt
 from dockingrl.transforms.params import read_filter_params
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
+#: seed of the validation episodes that pick among ``keep_candidates`` actors (plus the run's
+#: seed); periodic evaluations use ``1_000_000 + frames``, the final one ``seed + 10_000``
+SELECT_SEED = 1 << 40
 #: TrainConfig fields that bias the training env's resets (``DockingConfig`` fields of the same
 #: name); evaluation keeps Sec. 4.1's draws
 TRAINING_DRAWS = ("following_current_fraction", "lateral_current_fraction", "near_start_fraction")
@@ -199,8 +202,9 @@ class Trainer:
         self.next_eval = cfg.eval_every
         self.next_checkpoint = cfg.checkpoint_every or None
         self.last_success = float("nan")
-        # keep_best: the best periodic evaluation so far and the actor's weights then
-        self.best: dict | None = None
+        # keep_best: the keep_candidates best periodic evaluations so far (best first, the
+        # earlier of equal scores first), each with the actor's weights then
+        self.candidates: list[dict] = []
         self.run_id = run_dir.name.replace("__", "-")[-60:]
         self.env_kwargs = env_kwargs(cfg)
         probe = make_env(cfg.scenario, 1, seed=0, **self.env_kwargs)
@@ -242,6 +246,7 @@ class Trainer:
             "next_checkpoint": self.next_checkpoint,
             "torch_rng": torch.get_rng_state(),
             "best": self.best,
+            "candidates": self.candidates,
         }
         torch.save(state, tmp / "state.pt")
         if self.agent.replay_buffer is not None and len(self.agent.replay_buffer):
@@ -271,7 +276,9 @@ class Trainer:
             state["elapsed"],
         )
         self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
-        self.best = state.get("best")
+        best = state.get("best")
+        self.candidates = state.get("candidates", [best] if best is not None else [])
+        del self.candidates[self.cfg.keep_candidates :]
         torch.set_rng_state(state["torch_rng"])
         self._drop_curves_after(self.frames)
         return True
@@ -302,18 +309,70 @@ class Trainer:
             **self.env_kwargs,
         )
         self.last_success = m["success_rate"]
-        if self.cfg.keep_best and (self.best is None or m["success_rate"] > self.best["success"]):
-            self.best = {
-                "success": m["success_rate"],
-                "frames": self.frames,
-                "actor": {
-                    k: v.detach().cpu().clone() for k, v in self.agent.actor.state_dict().items()
-                },
-            }
+        if self.cfg.keep_best:
+            self._keep_candidate(m["success_rate"])
         return {
             "eval/success_rate": m["success_rate"],
             "eval/total_reward": m["total_reward"]["mean"],
             "eval/episode_time_s": m["time_all_s"]["mean"],
+        }
+
+    @property
+    def best(self) -> dict | None:
+        """The best periodic evaluation kept so far (``keep_best``), or None."""
+        return self.candidates[0] if self.candidates else None
+
+    def _keep_candidate(self, success: float) -> None:
+        if len(self.candidates) >= self.cfg.keep_candidates and not (
+            success > self.candidates[-1]["success"]
+        ):
+            return
+        actor = {k: v.detach().cpu().clone() for k, v in self.agent.actor.state_dict().items()}
+        self.candidates.append({"success": success, "frames": self.frames, "actor": actor})
+        self.candidates.sort(key=lambda c: -c["success"])  # stable: earlier first on ties
+        del self.candidates[self.cfg.keep_candidates :]
+
+    def _select_candidate(self) -> dict:
+        """Load the kept actor to end with into ``agent.actor``; returns what the summary and
+        the policy file record of the choice. With several candidates, each is scored on the
+        same ``select_episodes`` validation episodes (seed :data:`SELECT_SEED` + the run's
+        seed) and the best success rate wins (the higher mean reward on a tie, then the
+        better periodic evaluation)."""
+        cfg, chosen = self.cfg, self.candidates[0]
+        record = {}
+        if len(self.candidates) > 1:
+            start, scores = time.perf_counter(), []
+            for candidate in self.candidates:
+                self.agent.actor.load_state_dict(candidate["actor"])
+                m = evaluate(
+                    self.agent.actor,
+                    cfg.scenario,
+                    cfg.select_episodes,
+                    seed=SELECT_SEED + cfg.seed,
+                    device=cfg.device,
+                    **self.env_kwargs,
+                )
+                scores.append((m["success_rate"], m["total_reward"]["mean"]))
+            top = max(range(len(scores)), key=lambda i: (*scores[i], -i))
+            chosen = self.candidates[top]
+            record = {
+                "policy_validation_success_rate": scores[top][0],
+                "selection_wall_clock_s": time.perf_counter() - start,
+                "selection": [
+                    {
+                        "frames": c["frames"],
+                        "periodic_success_rate": c["success"],
+                        "validation_success_rate": score[0],
+                        "validation_total_reward": score[1],
+                    }
+                    for c, score in zip(self.candidates, scores, strict=True)
+                ],
+            }
+        self.agent.actor.load_state_dict(chosen["actor"])
+        return {
+            "policy_from_frames": chosen["frames"],
+            "policy_periodic_success_rate": chosen["success"],
+            **record,
         }
 
     # -- the loop --------------------------------------------------------------------------
@@ -438,12 +497,8 @@ class Trainer:
     def finish(self, logger: RunLogger) -> dict:
         cfg = self.cfg
         chosen = {}
-        if cfg.keep_best and self.best is not None:
-            self.agent.actor.load_state_dict(self.best["actor"])
-            chosen = {
-                "policy_from_frames": self.best["frames"],
-                "policy_periodic_success_rate": self.best["success"],
-            }
+        if cfg.keep_best and self.candidates:
+            chosen = self._select_candidate()
         save_policy(
             self.run_dir / "policy.pt",
             self.agent.actor,
@@ -524,7 +579,9 @@ def plot_run(run_dir: str | Path) -> Path | None:
 
 #: what a resumed run may change: where and how fast it runs, not what it learns, and how long
 #: it goes on (``total_steps``: a finished run can be continued to a larger total)
-RESUME_OVERRIDES = ("threads", "device", "total_steps")
+RESUME_OVERRIDES = ("threads", "device", "total_steps", "keep_candidates", "select_episodes")
+#: the overrides that config.json records (the others change how, not what, the run computes)
+_RECORDED_OVERRIDES = ("total_steps", "keep_candidates", "select_episodes")
 
 
 def train(
@@ -546,10 +603,13 @@ def train(
         resume: a run folder whose latest checkpoint to continue from, to the same
             ``total_steps`` (its ``config.json`` is used; ``cfg`` is ignored).
         overrides: with ``resume``, new values of :data:`RESUME_OVERRIDES` (threads, device,
-            total_steps). A new ``total_steps`` continues the run, finished or not, to that
-            total (not below its checkpoint); ``config.json`` records it. With ``keep_best``
-            the final policy is the best periodic actor of the whole run. PPO's linear
-            learning-rate schedule is tied to the total, so that run's total cannot change.
+            total_steps, keep_candidates, select_episodes). A new ``total_steps`` continues the
+            run, finished or not, to that total (not below its checkpoint). With ``keep_best``
+            the final policy is chosen among the best periodic actors of the whole run; a new
+            ``keep_candidates`` keeps that many from the checkpoint's on (a checkpoint holds
+            only those it was asked to keep). ``config.json`` records these three. PPO's
+            linear learning-rate schedule is tied to the total, so that run's total cannot
+            change.
     """
     if resume is not None:
         run_dir = Path(resume)
@@ -568,8 +628,9 @@ def train(
                 f"a resumed run keeps its config; only {', '.join(RESUME_OVERRIDES)} may change, "
                 f"not {', '.join(changed)}"
             )
-        if overrides.get("total_steps") == saved["total_steps"]:
-            del overrides["total_steps"]
+        for name in _RECORDED_OVERRIDES:
+            if name in overrides and overrides[name] == saved.get(name):
+                del overrides[name]
         if "total_steps" in overrides and saved.get("lr_schedule", "constant") != "constant":
             raise ValueError(
                 f"the run's lr_schedule {saved['lr_schedule']!r} anneals to its total_steps "
@@ -595,7 +656,7 @@ def train(
                 f"total_steps {cfg.total_steps} is below the checkpoint's {trainer.frames} "
                 "env steps"
             )
-        if "total_steps" in overrides:
+        if set(overrides) & set(_RECORDED_OVERRIDES):
             write_json(run_dir / "config.json", cfg.to_dict())
     logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
     if trainer.frames < cfg.total_steps and not trainer.out_of_time:

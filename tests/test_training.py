@@ -162,7 +162,8 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(tmp_path, monke
 def test_a_finished_run_continues_to_a_larger_total(tmp_path):
     """``--resume RUN --total-steps N`` continues a finished run from its last checkpoint: the
     replay buffer and counters carry on, config.json records the new total, and with
-    ``keep_best`` the final policy is the best periodic actor of the whole run."""
+    ``keep_best`` the final policy is the best periodic actor of the whole run (or the best
+    on validation episodes of the kept ones, ``keep_candidates`` given at the resume)."""
     cfg = tiny_config("sac", "compound", tmp_path, keep_best=True)
     first = train(cfg, progress=False)
     run = tmp_path / "sac_compound"
@@ -178,6 +179,13 @@ def test_a_finished_run_continues_to_a_larger_total(tmp_path):
     assert result["summary"]["policy_periodic_success_rate"] == best[1]
     trainer = Trainer(cfg, run, progress=False)
     assert trainer.load_checkpoint() and len(trainer.agent.replay_buffer) == longer
+    # the end-of-run choice may change too: the checkpoint's best actor and those to come
+    more = {"total_steps": 3 * cfg.total_steps, "keep_candidates": 3, "select_episodes": 4}
+    result = train(None, resume=run, progress=False, overrides=more)
+    saved = json.loads((run / "config.json").read_text())
+    assert {k: saved[k] for k in more} == more
+    assert 1 < len(result["summary"]["selection"]) <= 3
+    assert max(c["frames"] for c in result["summary"]["selection"]) > longer
     # a total below the checkpoint, and a new total for an annealed learning rate, are refused
     with pytest.raises(ValueError, match="below the checkpoint"):
         train(None, resume=run, progress=False, overrides={"total_steps": cfg.total_steps})
@@ -483,6 +491,56 @@ def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(tmp_path,
     latest = json.loads((run / "checkpoints" / "latest.json").read_text())
     state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
     assert state["best"]["frames"] == 512 and state["best"]["success"] == 90.0
+
+
+def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_path, monkeypatch):
+    """Periodic evaluations score 50, 90, 70 %; the two best actors (90, 70) are scored again
+    on the same validation episodes (80 and 95 %): the run ends with the second, and the
+    validation seed differs from every periodic and final one."""
+    import dockingrl.training as training
+
+    real_evaluate, periodic, validation = training.evaluate, iter([50.0, 90.0, 70.0]), {}
+    actors, seeds = {}, {"periodic": [], "select": [], "final": []}
+
+    def scripted(policy, scenario, num_episodes, **kwargs):
+        metrics = real_evaluate(policy, scenario, num_episodes, **kwargs)
+        state = {k: v.clone() for k, v in policy.state_dict().items()}
+        if num_episodes == COMMON["eval_episodes"]:
+            metrics["success_rate"] = next(periodic)
+            actors[metrics["success_rate"]] = state
+            seeds["periodic"].append(kwargs["seed"])
+        elif num_episodes == 5:  # select_episodes
+            match = [s for s, a in actors.items() if all(torch.equal(a[k], state[k]) for k in a)]
+            metrics["success_rate"] = {90.0: 80.0, 70.0: 95.0}[match[0]]
+            validation[match[0]] = metrics["success_rate"]
+            seeds["select"].append(kwargs["seed"])
+        else:
+            seeds["final"].append(kwargs["seed"])
+            for k, v in actors[70.0].items():
+                torch.testing.assert_close(state[k], v)
+        return metrics
+
+    monkeypatch.setattr(training, "evaluate", scripted)
+    cfg = tiny_config(
+        "ppo",
+        "noise",
+        tmp_path,
+        total_steps=768,
+        eval_every=256,
+        keep_best=True,
+        keep_candidates=2,
+        select_episodes=5,
+    )
+    summary = train(cfg, progress=False)["summary"]
+    assert validation == {90.0: 80.0, 70.0: 95.0}, "both kept actors, and only they, validated"
+    assert summary["policy_from_frames"] == 768
+    assert summary["policy_periodic_success_rate"] == 70.0
+    assert summary["policy_validation_success_rate"] == 95.0
+    assert [c["frames"] for c in summary["selection"]] == [512, 768]
+    assert len(set(seeds["select"])) == 1 and len(seeds["final"]) == 1
+    assert not set(seeds["select"]) & set(seeds["periodic"] + seeds["final"])
+    with pytest.raises(ValueError, match="keep_candidates"):
+        tiny_config("ppo", "noise", tmp_path, keep_best=True, keep_candidates=0)
 
 
 def test_time_budget_stops_training_early_and_says_so(tmp_path):

@@ -128,6 +128,16 @@ class TrainConfig:
         "final evaluation's) instead of the last one (not in the paper)",
         default=False,
     )
+    keep_candidates: int = _doc(
+        "with keep_best: keep the actors of this many best periodic evaluations; with more "
+        "than one, each is evaluated again at the end on select_episodes validation episodes "
+        "(one set for all of them, never overlapping the periodic or final evaluations' "
+        "episodes) and the run ends with the best of them (not in the paper)",
+        default=1,
+    )
+    select_episodes: int = _doc(
+        "episodes of the validation that picks among keep_candidates actors", default=500
+    )
     observe_current: bool = _doc(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
@@ -176,6 +186,8 @@ class TrainConfig:
                 "threads",
                 "eval_every",
                 "action_repeat",
+                "keep_candidates",
+                "select_episodes",
             ),
             positive=("range_noise_scale", "bearing_noise_scale", "contact_speed_target"),
             fraction=(
