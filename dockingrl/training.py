@@ -301,7 +301,7 @@ class Trainer:
     # -- evaluation ------------------------------------------------------------------------
     def periodic_eval(self) -> dict[str, float]:
         m = evaluate(
-            self.agent.actor,
+            self.agent.policy,
             self.cfg.scenario,
             self.cfg.eval_episodes,
             seed=1_000_000 + self.frames,
@@ -327,13 +327,13 @@ class Trainer:
             success > self.candidates[-1]["success"]
         ):
             return
-        actor = {k: v.detach().cpu().clone() for k, v in self.agent.actor.state_dict().items()}
+        actor = {k: v.detach().cpu().clone() for k, v in self.agent.policy.state_dict().items()}
         self.candidates.append({"success": success, "frames": self.frames, "actor": actor})
         self.candidates.sort(key=lambda c: -c["success"])  # stable: earlier first on ties
         del self.candidates[self.cfg.keep_candidates :]
 
     def _select_candidate(self) -> dict:
-        """Load the kept actor to end with into ``agent.actor``; returns what the summary and
+        """Load the kept actor to end with into ``agent.policy``; returns what the summary and
         the policy file record of the choice. With several candidates, each is scored on the
         same ``select_episodes`` validation episodes (seed :data:`SELECT_SEED` + the run's
         seed) and the best success rate wins (the higher mean reward on a tie, then the
@@ -343,9 +343,9 @@ class Trainer:
         if len(self.candidates) > 1:
             start, scores = time.perf_counter(), []
             for candidate in self.candidates:
-                self.agent.actor.load_state_dict(candidate["actor"])
+                self.agent.policy.load_state_dict(candidate["actor"])
                 m = evaluate(
-                    self.agent.actor,
+                    self.agent.policy,
                     cfg.scenario,
                     cfg.select_episodes,
                     seed=SELECT_SEED + cfg.seed,
@@ -368,7 +368,7 @@ class Trainer:
                     for c, score in zip(self.candidates, scores, strict=True)
                 ],
             }
-        self.agent.actor.load_state_dict(chosen["actor"])
+        self.agent.policy.load_state_dict(chosen["actor"])
         return {
             "policy_from_frames": chosen["frames"],
             "policy_periodic_success_rate": chosen["success"],
@@ -501,7 +501,7 @@ class Trainer:
             chosen = self._select_candidate()
         save_policy(
             self.run_dir / "policy.pt",
-            self.agent.actor,
+            self.agent.policy,
             cfg,
             self.obs_dim,
             self.action_spec,
@@ -512,7 +512,7 @@ class Trainer:
         )
         start = time.perf_counter()
         final = evaluate(
-            self.agent.actor,
+            self.agent.policy,
             cfg.scenario,
             cfg.final_eval_episodes,
             seed=cfg.seed + 10_000,

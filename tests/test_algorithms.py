@@ -7,6 +7,7 @@ import torch
 from helpers import smoke_config
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import TanhNormal, ValueOperator
 from torchrl.objectives.value import TD0Estimator
 
@@ -407,3 +408,49 @@ def test_agents_learn_the_same_with_torchrls_tanh_normal(algo, monkeypatch):
     assert len(ours) == len(theirs)
     for a, b in zip(ours, theirs, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_averaged_actor_follows_the_live_one_by_its_decay(algo):
+    """``actor_average``: after each actor step the averaged weights move ``1 - decay`` of the
+    way to the live actor's (which the optimiser trains); the agent evaluates and checkpoints
+    the averaged actor."""
+    env = make_env("no_noise", 4, seed=0)
+    spec, decay = env.action_spec[0], 0.75
+    extra = {"batch_size": 16, "buffer_size": 1000, "policy_delay": 1} if algo == "td3" else {}
+    if algo == "sac":
+        extra = {"batch_size": 16, "buffer_size": 1000}
+    if algo == "ppo":
+        extra = {"epochs": 1, "minibatch_size": 80}
+    cfg = make_config(algo, "paper", hidden=(16,), actor_average=decay, **extra)
+    agent = make_agent(cfg, 6, spec, 30.0)
+    assert agent.policy is agent.averaged and agent.averaged is not agent.actor
+    if algo == "ppo":  # PPO learns from its own rollout (log-probabilities)
+        with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
+            data = env.rollout(20, agent.exploration_policy, break_when_any_done=False)
+    else:
+        data = env.rollout(20, break_when_any_done=False)
+        agent.learn(data, num_updates=0)
+    names = [k for k, _ in agent.actor.named_parameters()]
+    expected = {k: v.clone() for k, v in agent.averaged.named_parameters()}
+    for _ in range(3):
+        before = {k: v.clone() for k, v in agent.actor.named_parameters()}
+        if algo == "ppo":
+            agent.learn(data)  # one epoch of one minibatch: one actor step
+        else:
+            agent.learn(data[:, :1], num_updates=1)
+        live = dict(agent.actor.named_parameters())
+        assert any(not torch.equal(before[k], live[k]) for k in names), "the live actor learns"
+        for k in names:
+            expected[k] = decay * expected[k] + (1 - decay) * live[k].detach()
+        for k, v in agent.averaged.named_parameters():
+            torch.testing.assert_close(v, expected[k])
+    # a checkpoint carries it
+    other = make_agent(cfg, 6, spec, 30.0)
+    other.load_state_dict(agent.state_dict())
+    for (k, v), (_, w) in zip(
+        agent.averaged.named_parameters(), other.averaged.named_parameters(), strict=True
+    ):
+        assert torch.equal(v, w), k
+    with pytest.raises(ValueError, match="actor_average"):
+        make_config(algo, "paper", actor_average=1.0).validate()

@@ -543,6 +543,33 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_pat
         tiny_config("ppo", "noise", tmp_path, keep_best=True, keep_candidates=0)
 
 
+def test_runs_with_an_averaged_actor_evaluate_and_save_it(tmp_path, monkeypatch):
+    """With ``actor_average`` every evaluation sees the averaged actor (never the live one
+    that explores), and policy.pt holds the averaged weights of the last checkpoint."""
+    import dockingrl.training as training
+    from dockingrl.agents.saving import load_policy
+
+    real_evaluate, seen = training.evaluate, []
+
+    def spy(policy, scenario, num_episodes, **kwargs):
+        seen.append(all(not p.requires_grad for p in policy.parameters()))
+        return real_evaluate(policy, scenario, num_episodes, **kwargs)
+
+    monkeypatch.setattr(training, "evaluate", spy)
+    cfg = tiny_config("sac", "compound", tmp_path, actor_average=0.9)
+    train(cfg, progress=False)
+    assert seen == [True, True, True], "two periodic evaluations and the final one"
+    run = tmp_path / "sac_compound"
+    latest = json.loads((run / "checkpoints" / "latest.json").read_text())
+    assert latest["frames"] == cfg.total_steps
+    state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
+    saved = load_policy(run / "policy.pt")[0].state_dict()
+    averaged = state["agent"]["averaged"]
+    assert set(saved) == set(averaged)
+    for k, v in averaged.items():
+        assert torch.equal(saved[k], v), k
+
+
 def test_time_budget_stops_training_early_and_says_so(tmp_path):
     cfg = tiny_config("ppo", "noise", tmp_path, total_steps=2048, time_budget_s=1e-6)
     result = train(cfg, progress=False)

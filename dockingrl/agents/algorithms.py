@@ -8,6 +8,7 @@ gradient updates (the ``update()`` closure of TorchRL's sota-implementations).""
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -439,6 +440,32 @@ class Agent:
     advantage: GAE | None = None
     updates: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+    #: the exponential moving average of ``actor``'s weights (``actor_average > 0``)
+    averaged: nn.Module | None = None
+
+    @property
+    def policy(self) -> nn.Module:
+        """The actor to evaluate and save: the averaged one if there is one."""
+        return self.actor if self.averaged is None else self.averaged
+
+    def _average_actor(self) -> None:
+        """Move the averaged actor's weights towards the live actor's by
+        ``1 - actor_average`` (its buffers, if any, are copied)."""
+        if self.averaged is None:
+            return
+        pairs = self.extra.get("average_pairs")
+        if pairs is None:
+            live, avg = dict(self.actor.named_parameters()), dict(self.averaged.named_parameters())
+            pairs = self.extra["average_pairs"] = (
+                [avg[k] for k in live],
+                [live[k] for k in live],
+                list(zip(self.averaged.buffers(), self.actor.buffers(), strict=True)),
+            )
+        averaged, live, buffers = pairs
+        with torch.no_grad():
+            torch._foreach_lerp_(averaged, live, 1.0 - self.config.actor_average)
+            for mine, theirs in buffers:
+                mine.copy_(theirs)
 
     # -- learning ------------------------------------------------------------------------
     def learn(
@@ -525,6 +552,7 @@ class Agent:
             for o in opt.values():
                 o.step()
             self.target_updater.step()
+            self._average_actor()
             return {k: _scalar(v) for k, v in logs.items()}
         # TD3: the critics every update, the actor and the targets every policy_delay updates
         opt["critic"].zero_grad(set_to_none=True)
@@ -535,6 +563,7 @@ class Agent:
             logs.update(self._gradients("actor", batch))
             opt["actor"].step()
             self.target_updater.step()
+            self._average_actor()
         return {k: _scalar(v) for k, v in logs.items()}
 
     def _learn_ppo(self, data: TensorDictBase, progress: float) -> dict[str, float]:
@@ -562,6 +591,7 @@ class Agent:
                 out = self._gradients("ppo", batch)
                 torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                 optim.step()
+                self._average_actor()
                 self.updates += 1
                 for key, value in out.items():
                     logs.setdefault(key, []).append(_scalar(value))
@@ -577,6 +607,8 @@ class Agent:
         }
         if "generator" in self.extra:
             state["generator"] = self.extra["generator"].get_state()
+        if self.averaged is not None:
+            state["averaged"] = self.averaged.state_dict()
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -586,6 +618,8 @@ class Agent:
         self.updates = state["updates"]
         if "generator" in state:
             self.extra["generator"].set_state(state["generator"])
+        if self.averaged is not None:
+            self.averaged.load_state_dict(state["averaged"])
 
 
 def _scalar(value: torch.Tensor) -> float:
@@ -608,13 +642,19 @@ def make_agent(
     scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
     act_dim = action_spec.shape[-1]
     actor = build_actor(cfg, obs_dim, action_spec, max_dist).to(device)
+    averaged = None
+    if cfg.actor_average > 0:
+        averaged = copy.deepcopy(actor).requires_grad_(False)
     if isinstance(cfg, SACConfig):
-        return _make_sac(cfg, actor, obs_dim, act_dim, scale, max_dist, device)
-    if isinstance(cfg, TD3Config):
-        return _make_td3(cfg, actor, action_spec, obs_dim, act_dim, scale, max_dist, device)
-    if isinstance(cfg, PPOConfig):
-        return _make_ppo(cfg, actor, obs_dim, scale, device)
-    raise TypeError(f"no agent for {type(cfg).__name__}")
+        agent = _make_sac(cfg, actor, obs_dim, act_dim, scale, max_dist, device)
+    elif isinstance(cfg, TD3Config):
+        agent = _make_td3(cfg, actor, action_spec, obs_dim, act_dim, scale, max_dist, device)
+    elif isinstance(cfg, PPOConfig):
+        agent = _make_ppo(cfg, actor, obs_dim, scale, device)
+    else:
+        raise TypeError(f"no agent for {type(cfg).__name__}")
+    agent.averaged = averaged
+    return agent
 
 
 def _replay_buffer(cfg, device) -> TensorDictReplayBuffer:

@@ -138,6 +138,12 @@ class TrainConfig:
     select_episodes: int = _doc(
         "episodes of the validation that picks among keep_candidates actors", default=500
     )
+    actor_average: float = _doc(
+        "decay of an exponential moving average of the actor's weights, moved after every "
+        "actor step; periodic evaluations, keep_best and the saved policy use the averaged "
+        "actor, training explores with the live one (0: off; not in the paper)",
+        default=0.0,
+    )
     observe_current: bool = _doc(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
@@ -207,6 +213,8 @@ class TrainConfig:
             fail("filter_params", f"scenario {self.scenario!r} has no filter")
         if not self.hidden or any(h < 1 for h in self.hidden):
             fail("hidden", "needs positive layer sizes")
+        if not 0.0 <= self.actor_average < 1.0:
+            fail("actor_average", "must lie in [0, 1)")
         if self.mirror_symmetric not in MIRROR_SYMMETRIC:
             fail(
                 "mirror_symmetric",
