@@ -25,7 +25,12 @@ from dockingrl.env import DockingConfig
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import check_mirror_symmetric, make_env
-from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
+from dockingrl.transforms import (
+    ContactSpeedPenalty,
+    MissPenaltyFloor,
+    PassedStationEnd,
+    SuccessBonus,
+)
 from dockingrl.transforms.params import read_filter_params
 
 CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
@@ -167,8 +172,8 @@ def training_draws(cfg: TrainConfig, config: DockingConfig) -> DockingConfig:
 def training_transforms(cfg: TrainConfig) -> list:
     """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
     the paper's eq. 12), then the optional terms the agent learns from: the floor on a miss's
-    contact reward, the contact-speed penalty, and the end of an episode that passes the
-    station."""
+    contact reward, the contact-speed penalty, the success bonus, and the end of an episode
+    that passes the station."""
     base = DockingConfig()
     contact_weight = base.contact_weight
     transforms = [RewardSum()]
@@ -179,6 +184,8 @@ def training_transforms(cfg: TrainConfig) -> list:
         transforms.append(
             ContactSpeedPenalty(cfg.contact_speed_penalty, cfg.contact_speed_target, cap)
         )
+    if cfg.success_bonus > 0:
+        transforms.append(SuccessBonus(cfg.success_bonus))
     if cfg.passed_station_penalty > 0:
         transforms.append(PassedStationEnd(cfg.passed_station_penalty, base.dock_x[1]))
     return transforms

@@ -7,20 +7,27 @@ from dockingrl import make_env
 from dockingrl.agents.config import make_config
 from dockingrl.evaluation import base_env
 from dockingrl.training import training_transforms
-from dockingrl.transforms import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
+from dockingrl.transforms import (
+    ContactSpeedPenalty,
+    MissPenaltyFloor,
+    PassedStationEnd,
+    SuccessBonus,
+)
 
 WEIGHT, TARGET = 2000.0, 0.27
 
 
-def fast_contact_rollout(transforms, pose=(-2.3, 0.0, 0.0), current=(0.3, 0.0)):
+def fast_contact_rollout(
+    transforms, pose=(-2.3, 0.0, 0.0), current=(0.3, 0.0), surge=(0.8, 0.6), steps=40
+):
     """Two envs start 1.5 m in front of the funnel with a following current and full surge:
     both touch the station within a few steps at well over 0.3 m/s."""
     env = make_env("compound", 2, seed=3, transforms=transforms)
     base_env(env).set_initial_state(pose=torch.tensor(pose), ocean_current=torch.tensor(current))
-    action = torch.tensor([[0.8, 0.0], [0.6, 0.0]])
+    action = torch.tensor([[surge[0], 0.0], [surge[1], 0.0]])
     td = env.reset()
-    steps = []
-    for _ in range(40):
+    steps, limit = [], steps
+    for _ in range(limit):
         td["action"] = action
         td = env.step(td)
         steps.append(td["next"].clone())
@@ -61,6 +68,32 @@ def test_capped_penalty_never_goes_below_a_miss():
     contact_reward = plain["reward"][-1].squeeze(-1) - 200.0 * score[-1]
     torch.testing.assert_close(capped["reward"][-1].squeeze(-1), contact_reward, atol=1e-3, rtol=0)
     assert bool((difference[~contact] == 0).all())
+
+
+def test_success_bonus_rewards_a_slow_entry_and_not_a_fast_one():
+    """No current: one env creeps in at 0.1 m/s (a success), the other rams the station at
+    0.85 m/s (too fast): only the first step of the success earns the bonus."""
+    kwargs = dict(current=(0.0, 0.0), surge=(0.1, 0.8), steps=120)
+    plain = fast_contact_rollout([RewardSum()], **kwargs)
+    bonus = fast_contact_rollout([RewardSum(), SuccessBonus(150.0)], **kwargs)
+    done = plain["done"].squeeze(-1)
+    first = done.float().argmax(0)
+    assert bool(done.any(0).all()) and first[1] < first[0]
+    success = plain["success"].squeeze(-1)
+    assert bool(success[first[0], 0]) and not bool(success[first[1], 1])
+    difference = (bonus["reward"] - plain["reward"]).squeeze(-1)
+    for env in (0, 1):
+        upto = difference[: first[env] + 1, env]
+        expected = torch.zeros_like(upto)
+        expected[-1] = 150.0 if env == 0 else 0.0
+        torch.testing.assert_close(upto, expected)
+    torch.testing.assert_close(bonus["episode_reward"], plain["episode_reward"])
+    names = [type(t).__name__ for t in training_transforms(make_config("sac", success_bonus=50))]
+    assert names == ["RewardSum", "SuccessBonus"]
+    with pytest.raises(ValueError, match="bonus"):
+        SuccessBonus(0.0)
+    with pytest.raises(ValueError, match="success_bonus"):
+        make_config("sac", success_bonus=-1.0)
 
 
 def test_env_specs_hold_with_the_penalty():

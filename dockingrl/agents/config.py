@@ -85,6 +85,10 @@ class TrainConfig:
     contact_speed_target: float = _doc(
         "ground speed (m/s) above which contact_speed_penalty applies", default=0.27
     )
+    success_bonus: float = _doc(
+        "training reward + this on a successful contact (0: the paper's reward; not in the paper)",
+        default=0.0,
+    )
     contact_speed_penalty_cap: bool = _doc(
         "cap the contact-speed penalty at the contact reward 200 max(g, 0), so a too-fast "
         "contact never scores below a miss",
@@ -204,6 +208,7 @@ class TrainConfig:
             non_negative=(
                 "checkpoint_every",
                 "contact_speed_penalty",
+                "success_bonus",
                 "miss_penalty_floor",
                 "passed_station_penalty",
                 "time_budget_s",

@@ -19,7 +19,12 @@ from dockingrl.transforms.filtering import (
     ProcessNoise,
 )
 from dockingrl.transforms.repeat import ActionRepeat
-from dockingrl.transforms.shaping import ContactSpeedPenalty, MissPenaltyFloor, PassedStationEnd
+from dockingrl.transforms.shaping import (
+    ContactSpeedPenalty,
+    MissPenaltyFloor,
+    PassedStationEnd,
+    SuccessBonus,
+)
 
 __all__ = [
     "ActionRepeat",
@@ -27,6 +32,7 @@ __all__ = [
     "ContactSpeedPenalty",
     "MissPenaltyFloor",
     "PassedStationEnd",
+    "SuccessBonus",
     "PreviousAction",
     "EKFTransform",
     "MeasurementNoise",

@@ -107,6 +107,39 @@ class MissPenaltyFloor(Transform):
         return tensordict_reset
 
 
+class SuccessBonus(Transform):
+    """Adds ``bonus`` to ``reward`` on the step of a successful contact (training only, not in
+    the paper).
+
+    The contact reward of eq. 11 and :class:`ContactSpeedPenalty` are continuous in the contact
+    speed: a contact at 0.31 m/s, a failure, earns almost what one at 0.29 m/s, a success, does.
+    An agent that trades a few seconds against a few m/s of contact speed then settles close
+    to the limit where a strong following current makes braking costly. A bonus on the
+    ``success`` flag puts the success criterion's step into the reward, so that arriving with
+    a margin pays.
+
+    Args:
+        bonus: reward units added on a successful contact (> 0).
+    """
+
+    def __init__(self, bonus: float) -> None:
+        if not bonus > 0:
+            raise ValueError(f"bonus must be > 0, got {bonus!r}")
+        super().__init__(in_keys=["reward", "success"], out_keys=["reward"])
+        self.bonus = float(bonus)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        reward = next_tensordict.get("reward")
+        success = next_tensordict.get("success").to(reward.dtype).reshape(reward.shape)
+        next_tensordict.set("reward", reward + self.bonus * success)
+        return next_tensordict
+
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        return tensordict_reset
+
+
 class PassedStationEnd(Transform):
     """Ends a training episode when the AUV passes the station's entrance plane beside the
     funnel, with a penalty (training only, not in the paper).
