@@ -30,8 +30,9 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="RUN_DIR",
         help="continue the run in RUN_DIR from its latest checkpoint to the same "
-        "total (its config.json is used; only --threads, --device and --total-steps may "
-        "change: a larger --total-steps continues a finished run)",
+        "total (its config.json is used; only --threads, --device, --total-steps, "
+        "--keep-candidates and --select-episodes may change: a larger --total-steps "
+        "continues a finished run)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_config_arguments(parser)

@@ -584,8 +584,9 @@ def plot_run(run_dir: str | Path) -> Path | None:
     )
 
 
-#: what a resumed run may change: where and how fast it runs, not what it learns, and how long
-#: it goes on (``total_steps``: a finished run can be continued to a larger total)
+#: what a resumed run may change: where and how fast it runs, not what it learns, how long it
+#: goes on (``total_steps``: a finished run can be continued to a larger total), and how it
+#: chooses the actor it ends with (``keep_candidates``, ``select_episodes``)
 RESUME_OVERRIDES = ("threads", "device", "total_steps", "keep_candidates", "select_episodes")
 #: the overrides that config.json records (the others change how, not what, the run computes)
 _RECORDED_OVERRIDES = ("total_steps", "keep_candidates", "select_episodes")

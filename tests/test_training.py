@@ -495,9 +495,12 @@ def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(tmp_path,
 
 def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_path, monkeypatch):
     """Periodic evaluations score 50, 90, 70 %; the two best actors (90, 70) are scored again
-    on the same validation episodes (80 and 95 %): the run ends with the second, and the
-    validation seed differs from every periodic and final one."""
+    on the same validation episodes (95 and 80 %): the run ends with the first (loaded again
+    after the second was scored), policy.pt holds it, and the validation seed differs from
+    every periodic and final one. A checkpoint of before the candidates (only ``best``)
+    still loads."""
     import dockingrl.training as training
+    from dockingrl.agents.saving import load_policy
 
     real_evaluate, periodic, validation = training.evaluate, iter([50.0, 90.0, 70.0]), {}
     actors, seeds = {}, {"periodic": [], "select": [], "final": []}
@@ -511,12 +514,12 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_pat
             seeds["periodic"].append(kwargs["seed"])
         elif num_episodes == 5:  # select_episodes
             match = [s for s, a in actors.items() if all(torch.equal(a[k], state[k]) for k in a)]
-            metrics["success_rate"] = {90.0: 80.0, 70.0: 95.0}[match[0]]
+            metrics["success_rate"] = {90.0: 95.0, 70.0: 80.0}[match[0]]
             validation[match[0]] = metrics["success_rate"]
             seeds["select"].append(kwargs["seed"])
         else:
             seeds["final"].append(kwargs["seed"])
-            for k, v in actors[70.0].items():
+            for k, v in actors[90.0].items():
                 torch.testing.assert_close(state[k], v)
         return metrics
 
@@ -532,15 +535,31 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_pat
         select_episodes=5,
     )
     summary = train(cfg, progress=False)["summary"]
-    assert validation == {90.0: 80.0, 70.0: 95.0}, "both kept actors, and only they, validated"
-    assert summary["policy_from_frames"] == 768
-    assert summary["policy_periodic_success_rate"] == 70.0
+    assert validation == {90.0: 95.0, 70.0: 80.0}, "both kept actors, and only they, validated"
+    assert summary["policy_from_frames"] == 512
+    assert summary["policy_periodic_success_rate"] == 90.0
     assert summary["policy_validation_success_rate"] == 95.0
     assert [c["frames"] for c in summary["selection"]] == [512, 768]
+    saved = load_policy(tmp_path / "ppo_noise" / "policy.pt")[0].state_dict()
+    for k, v in actors[90.0].items():
+        torch.testing.assert_close(saved[k], v)
     assert len(set(seeds["select"])) == 1 and len(seeds["final"]) == 1
     assert not set(seeds["select"]) & set(seeds["periodic"] + seeds["final"])
     with pytest.raises(ValueError, match="keep_candidates"):
         tiny_config("ppo", "noise", tmp_path, keep_best=True, keep_candidates=0)
+    with pytest.raises(ValueError, match="set keep_best"):
+        tiny_config("ppo", "noise", tmp_path, keep_candidates=2)
+    # an older checkpoint holds only the best actor: it is the one candidate
+    run = tmp_path / "ppo_noise"
+    path = (
+        run / "checkpoints" / json.loads((run / "checkpoints" / "latest.json").read_text())["path"]
+    )
+    state = torch.load(path / "state.pt", weights_only=False)
+    del state["candidates"]
+    torch.save(state, path / "state.pt")
+    trainer = Trainer(cfg, run, progress=False)
+    assert trainer.load_checkpoint() and len(trainer.candidates) == 1
+    assert trainer.candidates[0]["frames"] == state["best"]["frames"] == 512
 
 
 def test_runs_with_an_averaged_actor_evaluate_and_save_it(tmp_path, monkeypatch):

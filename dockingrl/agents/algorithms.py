@@ -462,8 +462,10 @@ class Agent:
                 list(zip(self.averaged.buffers(), self.actor.buffers(), strict=True)),
             )
         averaged, live, buffers = pairs
+        weight = 1.0 - self.config.actor_average
         with torch.no_grad():
-            torch._foreach_lerp_(averaged, live, 1.0 - self.config.actor_average)
+            for mine, theirs in zip(averaged, live, strict=True):
+                mine.lerp_(theirs, weight)
             for mine, theirs in buffers:
                 mine.copy_(theirs)
 
@@ -619,6 +621,8 @@ class Agent:
         if "generator" in state:
             self.extra["generator"].set_state(state["generator"])
         if self.averaged is not None:
+            if "averaged" not in state:
+                raise ValueError("the agent averages its actor; the state holds no averaged actor")
             self.averaged.load_state_dict(state["averaged"])
 
 

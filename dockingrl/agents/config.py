@@ -218,6 +218,8 @@ class TrainConfig:
             fail("filter_params", f"scenario {self.scenario!r} has no filter")
         if not self.hidden or any(h < 1 for h in self.hidden):
             fail("hidden", "needs positive layer sizes")
+        if self.keep_candidates > 1 and not self.keep_best:
+            fail("keep_candidates", "chooses among the actors keep_best keeps: set keep_best")
         if not 0.0 <= self.actor_average < 1.0:
             fail("actor_average", "must lie in [0, 1)")
         if self.mirror_symmetric not in MIRROR_SYMMETRIC:
