@@ -287,17 +287,24 @@ class Trainer:
         self.candidates = state.get("candidates", [best] if best is not None else [])
         del self.candidates[self.cfg.keep_candidates :]
         torch.set_rng_state(state["torch_rng"])
-        self._drop_curves_after(self.frames)
         return True
 
     def _drop_curves_after(self, frames: int) -> None:
-        """Forget what was logged after the checkpoint: those steps are trained again."""
+        """Forget what was logged after the checkpoint: those steps are trained again. A run
+        resumed at its total only to end again (a new end-of-run choice) also forgets its
+        final evaluation, which it logs again."""
+        again = frames >= self.cfg.total_steps
         path = self.run_dir / "curves.csv"
         if not path.exists():
             return
         with path.open() as f:
             rows = list(csv.reader(f))
-        kept = [rows[0]] + [row for row in rows[1:] if int(row[0]) <= frames]
+        kept = [rows[0]] + [
+            row
+            for row in rows[1:]
+            if int(row[0]) < frames
+            or (int(row[0]) == frames and not (again and row[1].startswith("eval/final_")))
+        ]
 
         def write(tmp: Path) -> None:
             with tmp.open("w", newline="") as f:
@@ -666,6 +673,7 @@ def train(
             )
         if set(overrides) & set(_RECORDED_OVERRIDES):
             write_json(run_dir / "config.json", cfg.to_dict())
+        trainer._drop_curves_after(trainer.frames)
     logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
     if trainer.frames < cfg.total_steps and not trainer.out_of_time:
         try:

@@ -186,7 +186,14 @@ def test_a_finished_run_continues_to_a_larger_total(tmp_path):
     assert {k: saved[k] for k in more} == more
     assert 1 < len(result["summary"]["selection"]) <= 3
     assert max(c["frames"] for c in result["summary"]["selection"]) > longer
-    # a total below the checkpoint, and a new total for an annealed learning rate, are refused
+    # resumed once more, finished, only to choose again: one final evaluation in the curves
+    train(None, resume=run, progress=False, overrides={"select_episodes": 5})
+    finals = read_curves(run)["eval/final_success_rate"]
+    assert [s for s, _ in finals] == [
+        cfg.total_steps,
+        longer,
+        3 * cfg.total_steps,
+    ]  # a total below the checkpoint, and a new total for an annealed learning rate, are refused
     with pytest.raises(ValueError, match="below the checkpoint"):
         train(None, resume=run, progress=False, overrides={"total_steps": cfg.total_steps})
     ppo = tiny_config("ppo", "noise", tmp_path, lr_schedule="linear")
