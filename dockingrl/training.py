@@ -313,15 +313,21 @@ class Trainer:
         atomic_write(path, write)
 
     # -- evaluation ------------------------------------------------------------------------
-    def periodic_eval(self) -> dict[str, float]:
-        m = evaluate(
+    def _evaluate(self, episodes: int, seed: int, **kwargs) -> dict:
+        """:func:`~dockingrl.evaluation.evaluate` of the policy the agent evaluates and saves,
+        in the run's scenario and world."""
+        return evaluate(
             self.agent.policy,
             self.cfg.scenario,
-            self.cfg.eval_episodes,
-            seed=1_000_000 + self.frames,
+            episodes,
+            seed=seed,
             device=self.cfg.device,
+            **kwargs,
             **self.env_kwargs,
         )
+
+    def periodic_eval(self) -> dict[str, float]:
+        m = self._evaluate(self.cfg.eval_episodes, 1_000_000 + self.frames)
         self.last_success = m["success_rate"]
         if self.cfg.keep_best:
             self._keep_candidate(m["success_rate"])
@@ -358,14 +364,7 @@ class Trainer:
             start, scores = time.perf_counter(), []
             for candidate in self.candidates:
                 self.agent.policy.load_state_dict(candidate["actor"])
-                m = evaluate(
-                    self.agent.policy,
-                    cfg.scenario,
-                    cfg.select_episodes,
-                    seed=SELECT_SEED + cfg.seed,
-                    device=cfg.device,
-                    **self.env_kwargs,
-                )
+                m = self._evaluate(cfg.select_episodes, SELECT_SEED + cfg.seed)
                 scores.append((m["success_rate"], m["total_reward"]["mean"]))
             top = max(range(len(scores)), key=lambda i: (*scores[i], -i))
             chosen = self.candidates[top]
@@ -525,15 +524,7 @@ class Trainer:
             **chosen,
         )
         start = time.perf_counter()
-        final = evaluate(
-            self.agent.policy,
-            cfg.scenario,
-            cfg.final_eval_episodes,
-            seed=cfg.seed + 10_000,
-            device=cfg.device,
-            progress=self.progress,
-            **self.env_kwargs,
-        )
+        final = self._evaluate(cfg.final_eval_episodes, cfg.seed + 10_000, progress=self.progress)
         final.update(algo=cfg.algo, policy=str(self.run_dir / "policy.pt"), command=self.command)
         write_json(self.run_dir / "eval.json", final)
         summary = {
