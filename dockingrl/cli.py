@@ -332,9 +332,11 @@ def build_parser() -> argparse.ArgumentParser:
     ex.set_defaults(func=cmd_export)
 
     from dockingrl.filter_cli import add_filter_commands
+    from dockingrl.grid_cli import add_grid_commands
     from dockingrl.train_cli import add_training_commands
 
     add_training_commands(sub)
+    add_grid_commands(sub)
     add_filter_commands(sub)
     return parser
 

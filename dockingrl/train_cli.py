@@ -9,21 +9,32 @@ from dockingrl.agents.config import (
     CONFIG_FIELDS,
     CONFIGS,
     PRESETS,
+    TrainConfig,
     add_config_arguments,
     config_from_args,
+    overrides_from_args,
 )
 
 
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--algo", choices=list(CONFIGS), help="algorithm (required unless --resume)"
+        "--recipe",
+        metavar="NAME|PATH",
+        help="a named recipe (paper-sac, paper-td3, paper-ppo: Tables 3-5 as published; sac, "
+        "td3, ppo: dockingrl's recommended ones; see dockingrl recipes) or a recipe YAML file; "
+        "options on the command line override its fields",
+    )
+    parser.add_argument(
+        "--algo",
+        choices=list(CONFIGS),
+        help="algorithm (required unless --recipe or --resume; with --recipe, must match it)",
     )
     parser.add_argument(
         "--preset",
         choices=list(PRESETS),
-        default="paper",
-        help="'paper': Tables 3-5 as published; 'fast': vectorised collection "
-        "sized for a 2-core CPU",
+        default=None,
+        help="without --recipe: 'paper' (default): Tables 3-5 as published; 'fast': vectorised "
+        "collection sized for a 2-core CPU",
     )
     parser.add_argument(
         "--resume",
@@ -36,6 +47,25 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_config_arguments(parser)
+
+
+def config_from_recipe(args: argparse.Namespace) -> TrainConfig:
+    """The config of ``args.recipe`` with the fields given on the command line on top."""
+    from dockingrl.recipes import load_recipe
+
+    if args.preset is not None:
+        raise SystemExit("error: --preset and --recipe exclude each other")
+    try:
+        recipe = load_recipe(args.recipe)
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from None
+    if args.algo is not None and args.algo != recipe.algo:
+        raise SystemExit(f"error: --algo {args.algo} but recipe {recipe.name!r} is {recipe.algo}")
+    args.algo = recipe.algo
+    try:
+        return recipe.make_config(**overrides_from_args(args))
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from None
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -53,9 +83,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         )
         if args.algo is not None:
             given["algo"] = args.algo
+    elif args.recipe:
+        cfg, given = config_from_recipe(args), None
     else:
         if args.algo is None:
-            raise SystemExit("error: --algo is required (unless --resume RUN_DIR)")
+            raise SystemExit("error: --algo or --recipe is required (unless --resume RUN_DIR)")
         cfg, given = config_from_args(args), None
     try:
         result = train(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 import signal
 import sys
@@ -540,6 +541,7 @@ class Trainer:
             **chosen,
             "machine": describe_machine(cfg.device),
             "command": self.command,
+            "code": code_version(),
         }
         write_json(self.run_dir / "summary.json", summary)
         logger.log(
@@ -649,19 +651,77 @@ def train(
     else:
         cfg.validate()
         run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
-        if (run_dir / "config.json").exists():
-            raise FileExistsError(f"{run_dir} already holds a run: pass --resume {run_dir}")
         run_dir.mkdir(parents=True, exist_ok=True)
-        write_json(run_dir / "config.json", cfg.to_dict())
+    with RunLock(run_dir):
+        if resume is None:
+            if (run_dir / "config.json").exists():
+                raise FileExistsError(f"{run_dir} already holds a run: pass --resume {run_dir}")
+            write_json(run_dir / "config.json", cfg.to_dict())
+        return _train_locked(cfg, run_dir, resume, progress, command, overrides or {})
+
+
+class RunInUse(RuntimeError):
+    """Another process is training in the run folder."""
+
+
+class RunLock:
+    """An exclusive lock on a run folder (``run.lock``, ``flock``) for as long as a process
+    trains in it; the operating system releases it when the process dies, however it dies."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.path = Path(run_dir) / "run.lock"
+        self._file = None
+
+    def __enter__(self) -> RunLock:
+        import fcntl
+
+        self._file = self.path.open("a")
+        try:
+            fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._file.close()
+            raise RunInUse(f"{self.path.parent} is in use by another training process") from None
+        self._file.truncate(0)
+        self._file.write(f"{os.getpid()}\n")
+        self._file.flush()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._file.close()
+
+
+def code_version() -> dict:
+    """The git commit of the dockingrl source that runs, and whether its tracked files differ
+    from it (``dirty``); ``commit`` is None outside a git checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+
+        def git(*args: str) -> str:
+            return subprocess.run(
+                ["git", "-C", str(root), *args], capture_output=True, text=True, check=True
+            ).stdout.strip()
+
+        return {
+            "commit": git("rev-parse", "HEAD"),
+            "dirty": bool(git("status", "--porcelain", "-uno")),
+        }
+    except (OSError, subprocess.CalledProcessError):
+        return {"commit": None, "dirty": None}
+
+
+def _train_locked(cfg, run_dir, resume, progress, command, overrides) -> dict:
     trainer = Trainer(cfg, run_dir, progress=progress, command=command)
     if resume is not None:
-        if not trainer.load_checkpoint():
-            raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints to resume from")
-        if cfg.total_steps < trainer.frames:
-            raise ValueError(
-                f"total_steps {cfg.total_steps} is below the checkpoint's {trainer.frames} "
-                "env steps"
-            )
+        # a run that stopped before its first checkpoint starts again from its config
+        if trainer.load_checkpoint() and "total_steps" in overrides:
+            # the last batch may overshoot the total: only a new total below it is refused
+            if cfg.total_steps < trainer.frames:
+                raise ValueError(
+                    f"total_steps {cfg.total_steps} is below the checkpoint's {trainer.frames} "
+                    "env steps"
+                )
         if set(overrides) & set(_RECORDED_OVERRIDES):
             write_json(run_dir / "config.json", cfg.to_dict())
         trainer._drop_curves_after(trainer.frames)
@@ -679,6 +739,8 @@ def train(
 
 __all__ = [
     "RESUME_OVERRIDES",
+    "RunInUse",
+    "RunLock",
     "RunLogger",
     "Trainer",
     "TrainingInterrupted",

@@ -40,6 +40,11 @@ def _check_ranges(cfg, counts=(), positive=(), unit=(), fraction=(), non_negativ
                 raise ValueError(f"{type(cfg).__name__}.{field_name}: {text} (got {value!r})")
 
 
+#: config fields that are not command-line options: the algorithm is chosen by ``--algo`` or the
+#: recipe, and the recipe's name by ``--recipe``
+_NOT_OPTIONS = frozenset({"algo", "recipe"})
+
+
 #: ``mirror_symmetric``: which networks are made mirror-symmetric
 MIRROR_SYMMETRIC = ("none", "actor", "all")
 
@@ -173,6 +178,7 @@ class TrainConfig:
     )
 
     algo: str = ""  # set by the subclasses
+    recipe: str = ""  # the name of the recipe the config was made from (dockingrl.recipes)
 
     def validate(self) -> None:
         def fail(name, why):
@@ -471,13 +477,41 @@ def make_config(algo: str, preset: str = "paper", **overrides) -> TrainConfig:
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; valid: {', '.join(PRESETS)}")
     cls = CONFIGS[algo]
-    known = {f.name for f in fields(cls)} - {"algo"}
+    known = {f.name for f in fields(cls)} - _NOT_OPTIONS
     unknown = set(overrides) - known
     if unknown:
         raise ValueError(f"unknown {algo} option(s): {', '.join(sorted(unknown))}")
     cfg = cls(**{**PRESETS[preset][algo], **overrides})
     cfg.validate()
     return cfg
+
+
+def check_types(algo: str, values: dict[str, Any]) -> None:
+    """Refuse (``ValueError``, one line) a field of ``algo``'s config that is unknown or whose
+    value has the wrong type: booleans for bool fields, integers for int fields, numbers for
+    float fields, strings for str fields, a list of integers for ``hidden``."""
+    if algo not in CONFIGS:
+        raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
+    hints = get_type_hints(CONFIGS[algo])
+    known = {f.name for f in fields(CONFIGS[algo])} - _NOT_OPTIONS
+    for name, value in values.items():
+        if name not in known:
+            raise ValueError(f"unknown {algo} option {name!r}")
+        kind = hints[name]
+        if kind is bool:
+            ok = isinstance(value, bool)
+        elif kind is int:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif kind is float:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        elif kind is str:
+            ok = isinstance(value, str)
+        else:  # tuple[int, ...]
+            ok = isinstance(value, (list, tuple)) and all(
+                isinstance(v, int) and not isinstance(v, bool) for v in value
+            )
+        if not ok:
+            raise ValueError(f"{algo} option {name}: expected {kind}, got {value!r}")
 
 
 def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
@@ -487,7 +521,7 @@ def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
     if algo not in CONFIGS:
         raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
     hints = get_type_hints(CONFIGS[algo])
-    known = {f.name for f in fields(CONFIGS[algo])} - {"algo"}
+    known = {f.name for f in fields(CONFIGS[algo])} - _NOT_OPTIONS
     booleans = {"true": True, "1": True, "false": False, "0": False}
     overrides: dict[str, Any] = {}
     for item in items:
@@ -517,7 +551,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     for algo, cls in CONFIGS.items():
         hints = get_type_hints(cls)
         for f in fields(cls):
-            if f.name == "algo":
+            if f.name in _NOT_OPTIONS:
                 continue
             if f.name in seen:
                 continue
@@ -543,11 +577,13 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 #: every config field that has a command-line option (of any algorithm)
-CONFIG_FIELDS = frozenset(f.name for cls in CONFIGS.values() for f in fields(cls)) - {"algo"}
+CONFIG_FIELDS = frozenset(f.name for cls in CONFIGS.values() for f in fields(cls)) - _NOT_OPTIONS
 
 
-def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    known = {f.name for f in fields(CONFIGS[args.algo])} - {"algo"}
+def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The config fields given on the command line (``--FIELD VALUE``) for ``args.algo``;
+    ``SystemExit`` for a field that does not apply to that algorithm."""
+    known = {f.name for f in fields(CONFIGS[args.algo])} - _NOT_OPTIONS
     overrides = {}
     for name, value in vars(args).items():
         if value is None or name not in CONFIG_FIELDS:
@@ -555,7 +591,13 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         if name not in known:
             raise SystemExit(f"error: --{name.replace('_', '-')} does not apply to {args.algo}")
         overrides[name] = tuple(value) if isinstance(value, list) else value
+    return overrides
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """The config of ``args.algo`` from ``args.preset`` and the fields on the command line."""
+    overrides = overrides_from_args(args)
     try:
-        return make_config(args.algo, args.preset, **overrides)
+        return make_config(args.algo, args.preset or "paper", **overrides)
     except ValueError as exc:
         raise SystemExit(f"error: {exc}") from exc

@@ -1,0 +1,106 @@
+"""``dockingrl grid`` and ``dockingrl recipes``: the command-line front of
+:mod:`dockingrl.grid` and :mod:`dockingrl.recipes`."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def cmd_recipes(args: argparse.Namespace) -> int:
+    from dockingrl.recipes import load_recipe, recipe_names
+
+    if args.name:
+        try:
+            recipe = load_recipe(args.name)
+        except ValueError as exc:
+            raise SystemExit(f"error: {exc}") from None
+        print(f"{recipe.name} ({recipe.algo}): {recipe.description}")
+        for key, value in recipe.make_config().to_dict().items():
+            mark = "*" if key in recipe.config else " "
+            print(f" {mark} {key} = {value}")
+        print("(* set by the recipe; the others are the paper's defaults)")
+        return 0
+    for name in recipe_names():
+        recipe = load_recipe(name)
+        print(f"{name:<10} {recipe.algo}  {recipe.description}")
+    return 0
+
+
+def cmd_grid(args: argparse.Namespace) -> int:
+    from dockingrl.grid import load_grid, run_grid
+
+    try:
+        grid = load_grid(args.grid, out=args.out, collect=args.collect)
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from None
+    if args.list:
+        from dockingrl.grid import finished_summary
+
+        for trial in grid.trials:
+            s = finished_summary(grid, trial)
+            state = f"finished, {s['success_rate']:.1f} %" if s else "not finished"
+            print(f"{trial.name:<34} {state}")
+        return 0
+    states = run_grid(
+        grid,
+        address=args.address,
+        max_concurrent=args.max_concurrent,
+        hours=args.hours,
+        view_every=args.view_every,
+        stop_after=args.stop_after,
+    )
+    left = sorted(n for n, s in states.items() if s != "finished")
+    if left:
+        print(f"{len(left)} of {len(states)} trials not finished; run the same command to resume")
+        return 1 if any(states[n] == "failed" for n in left) else 3
+    if args.table:
+        from dockingrl.table import write_table
+
+        write_table(
+            [
+                grid.run_dir(t)
+                if (grid.run_dir(t) / "summary.json").exists()
+                else grid.collect / t.name
+                for t in grid.trials
+            ],
+            args.table,
+        )
+    return 0
+
+
+def add_grid_commands(sub) -> None:
+    rc = sub.add_parser("recipes", help="list the named recipes, or show one")
+    rc.add_argument("name", nargs="?", help="a recipe name or YAML file to show whole")
+    rc.set_defaults(func=cmd_recipes)
+
+    gr = sub.add_parser(
+        "grid",
+        help="train a grid of recipes x scenarios x seeds on Ray (resumable)",
+        description="Run the trials of a grid file on Ray, as many at once as the CPUs allow "
+        "for the threads each takes. Interrupted (Ctrl-C, SIGTERM, a killed driver or machine), "
+        "the same command resumes it: finished trials are kept, unfinished ones continue from "
+        "their last checkpoint. Exit status: 0 all finished, 1 a trial failed, 3 trials left.",
+    )
+    gr.add_argument("grid", help="a shipped grid name (table6) or a grid YAML file")
+    gr.add_argument("--address", help="an existing Ray cluster to run on (default: local Ray)")
+    gr.add_argument("--out", help="folder of the run folders (default: the grid file's)")
+    gr.add_argument("--collect", help="folder for finished trials' small files (default: file's)")
+    gr.add_argument("--max-concurrent", type=int, default=None, help="trials at once")
+    gr.add_argument(
+        "--hours",
+        type=float,
+        default=0.0,
+        help="start only trials expected to end within this many hours (0: no limit)",
+    )
+    gr.add_argument(
+        "--stop-after", type=int, default=0, help="start no more trials once this many ended"
+    )
+    gr.add_argument("--view-every", type=float, default=60.0, help="seconds between views")
+    gr.add_argument("--list", action="store_true", help="list the trials and their state, run none")
+    gr.add_argument(
+        "--table",
+        default=None,
+        metavar="DIR",
+        help="when every trial is finished, write the table and figures there (dockingrl table)",
+    )
+    gr.set_defaults(func=cmd_grid)

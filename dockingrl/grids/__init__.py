@@ -1,0 +1,1 @@
+"""Grid files shipped with dockingrl (see :func:`dockingrl.grid.load_grid`)."""

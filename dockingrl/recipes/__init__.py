@@ -1,0 +1,107 @@
+"""Named training recipes: YAML files of config fields, shipped in this package.
+
+A recipe names an algorithm and the fields of its config (:mod:`dockingrl.agents.config`) that
+differ from the defaults, which are the paper's Tables 3-5. ``paper-sac``, ``paper-td3`` and
+``paper-ppo`` are the paper's, literally; ``sac``, ``td3`` and ``ppo`` are dockingrl's
+recommended ones, the same for every scenario. ``dockingrl train --recipe NAME`` takes a name
+listed by :func:`recipe_names` or the path of a YAML file of the same form::
+
+    algo: sac                 # sac, td3 or ppo
+    description: one line     # optional
+    config:                   # fields of the algorithm's config
+      num_envs: 16
+      hidden: [256, 256]
+
+Fields given on the command line (or as ``overrides``) take precedence over the recipe's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
+
+_KEYS = ("algo", "description", "config")
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A named set of config fields for one algorithm."""
+
+    name: str
+    algo: str
+    description: str = ""
+    config: dict[str, Any] = field(default_factory=dict)
+
+    def make_config(self, **overrides) -> TrainConfig:
+        """The recipe's config with ``overrides`` on top, validated; its ``recipe`` field
+        records the recipe's name."""
+        cls = CONFIGS[self.algo]
+        known = {f.name for f in fields(cls)} - {"algo", "recipe"}
+        unknown = sorted(set(overrides) - known)
+        if unknown:
+            raise ValueError(f"unknown {self.algo} option(s): {', '.join(unknown)}")
+        values = {**self.config, **overrides}
+        if "hidden" in values:
+            values["hidden"] = tuple(values["hidden"])
+        cfg = cls(**values, recipe=self.name)
+        cfg.validate()
+        return cfg
+
+
+def recipe_names() -> list[str]:
+    """The recipes shipped with dockingrl, sorted."""
+    root = resources.files(__package__)
+    return sorted(p.name[: -len(".yaml")] for p in root.iterdir() if p.name.endswith(".yaml"))
+
+
+def load_recipe(spec: str | Path) -> Recipe:
+    """The shipped recipe named ``spec``, or the recipe in the YAML file at path ``spec``.
+
+    Raises ``ValueError`` (one line) for an unknown name, an unreadable or malformed file, an
+    unknown algorithm or config field, or a value of the wrong type."""
+    import yaml
+
+    spec = str(spec)
+    if spec in recipe_names():
+        name, text = spec, resources.files(__package__).joinpath(f"{spec}.yaml").read_text()
+    else:
+        path = Path(spec)
+        if not path.is_file():
+            raise ValueError(
+                f"unknown recipe {spec!r}: neither a recipe name ({', '.join(recipe_names())}) "
+                "nor a YAML file"
+            )
+        name = path.stem
+        try:
+            text = path.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"recipe {spec}: cannot read it ({exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"recipe {spec}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"recipe {spec}: expected a mapping with keys {', '.join(_KEYS)}")
+    extra = sorted(set(data) - set(_KEYS))
+    if extra:
+        raise ValueError(f"recipe {spec}: unknown key(s) {', '.join(map(str, extra))}")
+    algo = data.get("algo")
+    if algo not in CONFIGS:
+        raise ValueError(f"recipe {spec}: algo must be one of {', '.join(CONFIGS)} (got {algo!r})")
+    config = data.get("config") or {}
+    if not isinstance(config, dict):
+        raise ValueError(f"recipe {spec}: config must be a mapping of fields")
+    recipe = Recipe(name, algo, str(data.get("description") or ""), dict(config))
+    try:
+        check_types(algo, config)
+        recipe.make_config()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"recipe {spec}: {exc}") from None
+    return recipe
+
+
+__all__ = ["Recipe", "load_recipe", "recipe_names"]
