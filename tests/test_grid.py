@@ -1,0 +1,139 @@
+"""``dockingrl grid``: grid files, the order of trials, and a grid that survives a SIGKILL of
+its driver (local Ray)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from dockingrl.grid import config_mismatch, load_grid, progress
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY_PPO = (
+    "{total_steps: 6000, num_envs: 4, steps_per_env: 100, minibatch_size: 100, epochs: 2, "
+    "hidden: [32, 32], eval_every: 2000, eval_episodes: 2, final_eval_episodes: 4, "
+    "select_episodes: 4, checkpoint_every: 1200, logger: none}"
+)
+
+
+def write_grid(tmp_path: Path, seeds=(0, 1)) -> Path:
+    path = tmp_path / "tiny.yaml"
+    path.write_text(
+        f"name: tiny\nout: {tmp_path / 'runs'}\ncollect: {tmp_path / 'collect'}\nthreads: 1\n"
+        f"scenarios: [noise]\noverrides: {TINY_PPO}\n"
+        f"groups:\n  - recipes: [ppo]\n    seeds: {list(seeds)}\n"
+    )
+    return path
+
+
+def test_table6_is_the_papers_grid():
+    grid = load_grid("table6")
+    names = [t.name for t in grid.trials]
+    assert len(names) == 3 * 4 * 3 + 4
+    for recipe in ("sac", "td3", "ppo"):
+        for scenario in ("no_noise", "noise", "filtered", "compound"):
+            assert {f"{recipe}__{scenario}__s{s}" for s in range(3)} <= set(names)
+    assert {f"paper-ppo__{s}__s0" for s in ("no_noise", "noise", "filtered", "compound")} <= set(
+        names
+    )
+    # every cell's seed 0 starts before any seed 1
+    seeds = [t.seed for t in grid.trials]
+    assert seeds == sorted(seeds)
+    totals = {t.recipe: t.config(grid.out, 1).total_steps for t in grid.trials}
+    assert totals == {"sac": 500_000, "td3": 2_500_000, "ppo": 2_500_000, "paper-ppo": 2_500_000}
+    assert all(t.config(grid.out, 1).eval_episodes >= 100 for t in grid.trials)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("groups: 3\n", "list of groups"),
+        ("groups:\n  - recipes: [nope]\n", "unknown recipe"),
+        ("groups:\n  - recipes: [sac]\n    scenarios: [sea]\n", "unknown scenario"),
+        ("groups:\n  - recipes: [sac]\n    seeds: [-1]\n", "seeds"),
+        ("groups:\n  - recipes: [sac]\n    colour: red\n", "group 0"),
+        ("threads: 0\ngroups:\n  - recipes: [sac]\n", "threads"),
+        ("overrides: {gamma: 3}\ngroups:\n  - recipes: [sac]\n", "gamma"),
+        ("groups:\n  - recipes: [sac, sac]\n", "twice"),
+        ("groups: []\n", "no trials"),
+    ],
+)
+def test_bad_grid_files_are_refused_before_anything_runs(tmp_path, text, message):
+    path = tmp_path / "g.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as info:
+        load_grid(path)
+    assert "\n" not in str(info.value)
+
+
+def test_a_trial_of_another_config_is_named():
+    saved = {"gamma": 0.99, "threads": 1, "hidden": [32, 32]}
+    assert config_mismatch(saved, {"gamma": 0.98, "threads": 2, "hidden": (32, 32)}) == ["gamma"]
+
+
+def test_progress_reads_the_end_of_the_curves(tmp_path):
+    (tmp_path / "curves.csv").write_text(
+        "step,key,value\n100,train/episodes,1\n200,eval/success_rate,40.0\n300,time/updates,3\n"
+    )
+    assert progress(tmp_path) == {"steps": 300, "success": 40.0}
+    assert progress(tmp_path / "none") == {"steps": 0, "success": None}
+
+
+def _grid_command(path: Path) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "dockingrl",
+        "grid",
+        str(path),
+        "--max-concurrent",
+        "1",
+        "--view-every",
+        "1",
+    ]
+
+
+def test_a_grid_resumes_after_its_driver_is_killed(tmp_path):
+    pytest.importorskip("ray")
+    path = write_grid(tmp_path)
+    runs = tmp_path / "runs"
+    first, second = runs / "ppo__noise__s0", runs / "ppo__noise__s1"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "RAY_AUTH_MODE": "disabled"}
+    driver = subprocess.Popen(
+        _grid_command(path), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        deadline = time.time() + 240
+        # kill it once the first trial has finished and the second has checkpointed
+        while not (
+            (first / "summary.json").exists() and (second / "checkpoints" / "latest.json").exists()
+        ):
+            assert driver.poll() is None, "the grid ended before it could be killed"
+            assert time.time() < deadline, "the grid made no progress"
+            time.sleep(0.2)
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+        assert not (second / "summary.json").exists()
+        finished_at = (first / "summary.json").stat().st_mtime_ns
+        rerun = subprocess.run(
+            _grid_command(path), env=env, capture_output=True, text=True, timeout=300
+        )
+        assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert (first / "summary.json").stat().st_mtime_ns == finished_at  # not rerun
+    summary = json.loads((second / "summary.json").read_text())
+    assert summary["frames"] >= 6000
+    rows = (second / "curves.csv").read_text().splitlines()[1:]
+    keys = [tuple(r.split(",")[:2]) for r in rows]
+    assert len(keys) == len(set(keys)), "a step was logged twice"
+    for trial in (first, second):
+        assert (tmp_path / "collect" / trial.name / "summary.json").exists()
+        assert (tmp_path / "collect" / trial.name / "policy.pt").exists()

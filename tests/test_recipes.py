@@ -1,0 +1,183 @@
+"""Named recipes: the shipped YAML files, their loading and refusals, and a smoke run of
+``dockingrl train --recipe NAME`` for every one of them."""
+
+import json
+
+import pytest
+
+from dockingrl.agents.config import make_config
+from dockingrl.cli import main
+from dockingrl.recipes import load_recipe, recipe_names
+
+SIX = ["paper-sac", "paper-td3", "paper-ppo", "sac", "td3", "ppo"]
+
+#: a run of seconds, whatever the recipe: 4 envs, small networks, a few episodes
+TINY = [
+    "--num-envs",
+    "4",
+    "--hidden",
+    "32",
+    "32",
+    "--eval-every",
+    "1000",
+    "--eval-episodes",
+    "2",
+    "--final-eval-episodes",
+    "4",
+    "--select-episodes",
+    "4",
+    "--logger",
+    "none",
+    "--checkpoint-every",
+    "0",
+    "--threads",
+    "1",
+    "--no-progress",
+]
+TINY_ALGO = {
+    "sac": [
+        "--total-steps",
+        "1600",
+        "--start-steps",
+        "400",
+        "--batch-size",
+        "32",
+        "--frames-per-batch",
+        "200",
+        "--no-compile-update",
+    ],
+    "ppo": ["--total-steps", "1600", "--steps-per-env", "100", "--minibatch-size", "100"],
+}
+TINY_ALGO["td3"] = TINY_ALGO["sac"]
+
+
+def test_the_six_recipes_are_shipped():
+    assert set(SIX) <= set(recipe_names())
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
+def test_paper_recipes_are_tables_3_to_5(algo):
+    recipe = load_recipe(f"paper-{algo}")
+    assert recipe.algo == algo and recipe.config == {}
+    cfg = recipe.make_config()
+    paper = make_config(algo, "paper")
+    assert {**cfg.to_dict(), "recipe": ""} == paper.to_dict()
+    assert cfg.recipe == f"paper-{algo}"
+
+
+def test_recommended_recipes_share_the_environment_choices():
+    """The TD3 recipe takes the SAC recipe's environment, observation and training reward."""
+    sac, td3 = load_recipe("sac").config, load_recipe("td3").config
+    shared = [
+        "action_repeat",
+        "observe_command",
+        "mirror_augment",
+        "contact_speed_penalty",
+        "contact_speed_penalty_cap",
+        "success_bonus",
+        "miss_penalty_floor",
+        "following_current_fraction",
+        "gamma",
+        "num_envs",
+        "normalize_observation",
+    ]
+    assert {k: sac[k] for k in shared} == {k: td3[k] for k in shared}
+    # the paper's budgets
+    assert load_recipe("sac").make_config().total_steps == 500_000
+    assert load_recipe("td3").make_config().total_steps == 2_500_000
+    assert load_recipe("ppo").make_config().total_steps == 2_500_000
+
+
+def test_a_recipe_file_and_overrides(tmp_path):
+    path = tmp_path / "mine.yaml"
+    path.write_text("algo: td3\nconfig:\n  hidden: [64, 64]\n  lr: 0.001\n")
+    recipe = load_recipe(path)
+    cfg = recipe.make_config(lr=0.002, scenario="noise")
+    assert (cfg.algo, cfg.recipe, cfg.hidden, cfg.lr, cfg.scenario) == (
+        "td3",
+        "mine",
+        (64, 64),
+        0.002,
+        "noise",
+    )
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("algo: dqn\n", "algo must be one of"),
+        ("algo: sac\nconfig:\n  no_such_field: 1\n", "no_such_field"),
+        ("algo: sac\nconfig:\n  num_envs: many\n", "num_envs"),
+        ("algo: sac\nconfig:\n  keep_best: 1\n", "keep_best"),
+        ("algo: sac\nconfig:\n  gamma: 2.0\n", "gamma"),
+        ("algo: sac\nrecipe_of: x\n", "unknown key"),
+        ("[1, 2]\n", "expected a mapping"),
+        ("algo: sac\nconfig: [\n", "not valid YAML"),
+    ],
+)
+def test_bad_recipe_files_are_one_line_errors(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as info:
+        load_recipe(path)
+    assert "\n" not in str(info.value)
+
+
+def test_an_unknown_recipe_name_lists_the_shipped_ones():
+    with pytest.raises(ValueError, match="paper-sac"):
+        load_recipe("no-such-recipe")
+
+
+@pytest.mark.parametrize("name", SIX)
+def test_train_with_every_recipe(name, tmp_path, capsys):
+    algo = load_recipe(name).algo
+    argv = [
+        "train",
+        "--recipe",
+        name,
+        "--scenario",
+        "noise",
+        "--seed",
+        "1",
+        "--out",
+        str(tmp_path),
+        "--run-name",
+        "r",
+        *TINY,
+        *TINY_ALGO[algo],
+    ]
+    assert main(argv) == 0
+    config = json.loads((tmp_path / "r" / "config.json").read_text())
+    recipe = load_recipe(name)
+    # the recipe's fields, except those the command line set, are in the run's config
+    given = {a.lstrip("-").removeprefix("no-").replace("-", "_") for a in argv if a[:2] == "--"}
+    for key, value in recipe.config.items():
+        if key not in given:
+            assert config[key] == value, key
+    assert (config["recipe"], config["algo"], config["scenario"], config["seed"]) == (
+        name,
+        algo,
+        "noise",
+        1,
+    )
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["frames"] >= 1600 and set(summary["code"]) == {"commit", "dirty"}
+    assert "success" in capsys.readouterr().out
+
+
+def test_train_refuses_a_recipe_of_another_algorithm_and_a_preset(tmp_path):
+    with pytest.raises(SystemExit, match="recipe 'sac' is sac"):
+        main(["train", "--recipe", "sac", "--algo", "ppo", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="exclude each other"):
+        main(["train", "--recipe", "sac", "--preset", "fast", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="does not apply to sac"):
+        main(["train", "--recipe", "sac", "--epochs", "3", "--out", str(tmp_path)])
+
+
+def test_recipes_command_lists_and_shows(capsys):
+    assert main(["recipes"]) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in SIX)
+    assert main(["recipes", "td3"]) == 0
+    shown = capsys.readouterr().out
+    assert "* updates_per_step = 0.1" in shown and "  policy_delay = 2" in shown
