@@ -54,17 +54,26 @@ def cmd_grid(args: argparse.Namespace) -> int:
         print(f"{len(left)} of {len(states)} trials not finished; run the same command to resume")
         return 1 if any(states[n] == "failed" for n in left) else 3
     if args.table:
+        from dockingrl.cli import command_line
         from dockingrl.table import write_table
 
-        write_table(
-            [
-                grid.run_dir(t)
-                if (grid.run_dir(t) / "summary.json").exists()
-                else grid.collect / t.name
-                for t in grid.trials
-            ],
-            args.table,
+        dirs = [grid.collect / t.name if grid.collect else grid.run_dir(t) for t in grid.trials]
+        write_table(dirs, args.table, prune_policies=bool(grid.collect), command=command_line())
+        print(f"table written to {args.table}")
+    return 0
+
+
+def cmd_table(args: argparse.Namespace) -> int:
+    from dockingrl.cli import command_line
+    from dockingrl.table import write_table
+
+    try:
+        table = write_table(
+            args.runs, args.out, prune_policies=args.prune_policies, command=command_line()
         )
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from None
+    print(f"{len(table['cells'])} cells written to {args.out} (table.md, table.json, figures)")
     return 0
 
 
@@ -104,3 +113,16 @@ def add_grid_commands(sub) -> None:
         help="when every trial is finished, write the table and figures there (dockingrl table)",
     )
     gr.set_defaults(func=cmd_grid)
+
+    tb = sub.add_parser(
+        "table",
+        help="Table 6 and Figures 6-8 from finished runs (cells: recipe x scenario, over seeds)",
+    )
+    tb.add_argument("runs", nargs="+", help="run folders (unfinished ones are left out)")
+    tb.add_argument("--out", default="results/table6", help="folder for table.md/json, figures")
+    tb.add_argument(
+        "--prune-policies",
+        action="store_true",
+        help="delete policy.pt from every run folder but the best seed's of each cell",
+    )
+    tb.set_defaults(func=cmd_table)

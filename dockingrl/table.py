@@ -1,0 +1,318 @@
+"""The paper's Table 6 and Figures 6-8 from finished runs: per (recipe, scenario) cell, the
+seeds' final 500-episode evaluations with intervals, the paper's values beside them, success
+at 200 k env steps, learning curves over seeds, and the paper's claims tested.
+
+Statistics are scipy's: the interval of a cell's mean success over seeds is a percentile
+bootstrap (:func:`scipy.stats.bootstrap`, 10,000 resamples); the interval of the success rate
+over all of a cell's episodes is Wilson's (:meth:`scipy.stats.binomtest.proportion_ci`). With
+three seeds a bootstrap interval is coarse: it can never be wider than the seeds' range.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from dockingrl.evaluation import PAPER_RESULTS
+from dockingrl.io import atomic_write, write_json
+
+SCENARIO_ORDER = ("no_noise", "noise", "filtered", "compound")
+#: env steps at which the sample-efficiency column reads the periodic evaluations
+EARLY_STEPS = 200_000
+_RESAMPLES = 10_000
+
+
+def _read(run_dir: Path) -> dict | None:
+    """A finished run's config, summary, final evaluation and success curve, or None."""
+    try:
+        run = {
+            name: json.loads((run_dir / f"{name}.json").read_text())
+            for name in ("config", "summary", "eval")
+        }
+    except (OSError, ValueError):
+        return None
+    curves: dict[str, list[tuple[int, float]]] = {}
+    path = run_dir / "curves.csv"
+    if path.exists():
+        for line in path.read_text().splitlines()[1:]:
+            step, key, value = line.split(",")
+            if key in ("eval/success_rate", "eval/total_reward", "eval/episode_time_s"):
+                curves.setdefault(key, []).append((int(step), float(value)))
+    run["curves"] = curves
+    run["dir"] = run_dir
+    return run
+
+
+def bootstrap_ci(values, statistic=np.mean) -> list[float] | None:
+    """95 % percentile-bootstrap interval of ``statistic`` over ``values`` (None for fewer
+    than two values; the value itself twice when they are all equal)."""
+    from scipy.stats import bootstrap
+
+    values = np.asarray(values, dtype=float)
+    if values.size < 2:
+        return None
+    if np.all(values == values[0]):
+        return [float(values[0])] * 2
+    res = bootstrap(
+        (values,),
+        statistic,
+        n_resamples=_RESAMPLES,
+        method="percentile",
+        random_state=np.random.default_rng(0),
+    )
+    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
+
+
+def difference_ci(a, b) -> list[float] | None:
+    """95 % percentile-bootstrap interval of mean(a) - mean(b), seeds resampled per group."""
+    from scipy.stats import bootstrap
+
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.size < 2 or b.size < 2:
+        return None
+    if np.all(a == a[0]) and np.all(b == b[0]):
+        return [float(a[0] - b[0])] * 2
+    res = bootstrap(
+        (a, b),
+        lambda x, y, axis=-1: x.mean(axis) - y.mean(axis),
+        n_resamples=_RESAMPLES,
+        method="percentile",
+        random_state=np.random.default_rng(0),
+    )
+    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
+
+
+def _pooled(parts: list[dict]) -> dict:
+    """Mean and std over the union of groups given as ``{"n", "mean", "std"}``."""
+    parts = [p for p in parts if p.get("n")]
+    n = sum(p["n"] for p in parts)
+    if not n:
+        return {"n": 0, "mean": float("nan"), "std": float("nan")}
+    mean = sum(p["n"] * p["mean"] for p in parts) / n
+    square = sum(p["n"] * (p["std"] ** 2 + p["mean"] ** 2) for p in parts) / n
+    return {"n": n, "mean": mean, "std": math.sqrt(max(square - mean**2, 0.0))}
+
+
+def _at(curve: list[tuple[int, float]], steps: int) -> tuple[int, float] | None:
+    """The first periodic evaluation at or after ``steps``."""
+    return next(((s, v) for s, v in curve if s >= steps), None)
+
+
+def cell(runs: list[dict]) -> dict:
+    """One cell of the table from its seeds' runs."""
+    from scipy.stats import binomtest
+
+    success = [r["eval"]["success_rate"] for r in runs]
+    episodes = [r["eval"]["episodes"] for r in runs]
+    docked = round(sum(s * n / 100 for s, n in zip(success, episodes, strict=True)))
+    wilson = binomtest(docked, sum(episodes)).proportion_ci(method="wilson")
+    early = [_at(r["curves"].get("eval/success_rate", []), EARLY_STEPS) for r in runs]
+    early = [e for e in early if e is not None]
+    algo = runs[0]["config"]["algo"]
+    paper = PAPER_RESULTS.get((algo, runs[0]["config"]["scenario"]))
+    best = max(runs, key=lambda r: r["eval"]["success_rate"])
+    return {
+        "recipe": runs[0]["config"].get("recipe", ""),
+        "algo": algo,
+        "scenario": runs[0]["config"]["scenario"],
+        "seeds": sorted(r["config"]["seed"] for r in runs),
+        "success_per_seed": success,
+        "success_mean": float(np.mean(success)),
+        "success_ci95_over_seeds": bootstrap_ci(success),
+        "success_ci95_over_episodes": [100 * wilson.low, 100 * wilson.high],
+        "episodes": sum(episodes),
+        "time_docked_s": _pooled([r["eval"]["time_s"] for r in runs]),
+        "total_reward": _pooled([r["eval"]["total_reward"] for r in runs]),
+        "success_at_200k": {
+            "mean": float(np.mean([v for _, v in early])) if early else None,
+            "per_seed": [v for _, v in early],
+            "steps": [s for s, _ in early],
+        },
+        "env_steps": [r["summary"]["frames"] for r in runs],
+        "train_wall_clock_s": [r["summary"]["train_wall_clock_s"] for r in runs],
+        "machine": sorted({r["summary"].get("machine", "") for r in runs}),
+        "code": sorted({(r["summary"].get("code") or {}).get("commit") or "" for r in runs}),
+        "best_seed": best["config"]["seed"],
+        "paper": None
+        if paper is None
+        else dict(
+            zip(
+                ("success", "time_mean", "time_std", "reward_mean", "reward_std"),
+                paper,
+                strict=True,
+            )
+        ),
+    }
+
+
+def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
+    """The paper's claims about Table 6, measured on the cells: per recipe, compound against
+    each other scenario (difference of mean success over seeds, with its interval), and which
+    recipe has the highest success at 200 k env steps on the compound scenario."""
+    out = []
+    for recipe in sorted({r for r, _ in cells}):
+        compound = cells.get((recipe, "compound"))
+        if compound is None:
+            continue
+        for other in ("noise", "filtered", "no_noise"):
+            c = cells.get((recipe, other))
+            if c is None:
+                continue
+            diff = compound["success_mean"] - c["success_mean"]
+            ci = difference_ci(compound["success_per_seed"], c["success_per_seed"])
+            if ci is None:
+                verdict = "too few seeds to tell"
+            elif ci[0] > 0:
+                verdict = "holds: compound higher"
+            elif ci[1] < 0:
+                verdict = "fails: compound lower"
+            else:
+                verdict = "not resolved: the interval contains 0"
+            out.append(
+                {
+                    "claim": f"compound >= {other}",
+                    "recipe": recipe,
+                    "difference_points": diff,
+                    "ci95": ci,
+                    "verdict": verdict,
+                }
+            )
+    early = {
+        r: c["success_at_200k"]["mean"]
+        for (r, s), c in cells.items()
+        if s == "compound" and c["success_at_200k"]["mean"] is not None
+    }
+    if early:
+        out.append(
+            {
+                "claim": "most sample-efficient (success at 200 k env steps, compound)",
+                "values": early,
+                "best": max(early, key=early.get),
+            }
+        )
+    return out
+
+
+def write_table(
+    run_dirs, out: str | Path, *, prune_policies: bool = False, command: str = "dockingrl table"
+) -> dict:
+    """Read the finished runs among ``run_dirs``, write ``table.json``, ``table.md`` and one
+    learning-curve figure per recipe (``figures_<recipe>.png``) into ``out``; returns the
+    table. With ``prune_policies``, ``policy.pt`` is deleted from every run folder but the
+    best seed's of each cell."""
+    out = Path(out)
+    runs = [r for r in (_read(Path(d)) for d in run_dirs) if r is not None]
+    if not runs:
+        raise ValueError("no finished run (config.json, summary.json and eval.json) given")
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in runs:
+        key = (r["config"].get("recipe") or r["config"]["algo"], r["config"]["scenario"])
+        groups.setdefault(key, []).append(r)
+    cells = {key: cell(group) for key, group in groups.items()}
+    order = sorted(
+        cells, key=lambda k: (k[0].startswith("paper-"), k[0], SCENARIO_ORDER.index(k[1]))
+    )
+    table = {
+        "cells": [cells[k] for k in order],
+        "claims": claims(cells),
+        "statistics": "success_ci95_over_seeds: percentile bootstrap of the mean over seeds "
+        f"(scipy.stats.bootstrap, {_RESAMPLES} resamples); success_ci95_over_episodes: Wilson "
+        "interval over all the cell's final-evaluation episodes; time over docked episodes, "
+        f"reward over all episodes, pooled over seeds; success_at_200k: the first periodic "
+        f"evaluation at or after {EARLY_STEPS} env steps",
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "table.json", table)
+    atomic_write(out / "table.md", lambda tmp: tmp.write_text(markdown(table)))
+    for recipe in sorted({k[0] for k in cells}):
+        group = {s: groups[(r, s)] for r, s in groups if r == recipe}
+        machines = sorted({r["summary"].get("machine", "") for g in group.values() for r in g})
+        hours = sum(r["summary"]["train_wall_clock_s"] for g in group.values() for r in g) / 3600
+        footer = f"{command}  |  {'; '.join(machines)}  |  {hours:.1f} h of training in all"
+        plot_curves(group, recipe, out / f"figures_{recipe}.png", footer)
+    if prune_policies:
+        for key, group in groups.items():
+            for r in group:
+                if r["config"]["seed"] != cells[key]["best_seed"]:
+                    (r["dir"] / "policy.pt").unlink(missing_ok=True)
+    return table
+
+
+def _fmt_ci(ci) -> str:
+    return "-" if ci is None else f"[{ci[0]:.1f}, {ci[1]:.1f}]"
+
+
+def markdown(table: dict) -> str:
+    lines = [
+        "| recipe | scenario | seeds | success % (mean) | 95 % CI over seeds | 95 % CI over "
+        "episodes | paper % | time s (docked) | paper time s | reward | paper reward | "
+        "success % at 200 k steps |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c in table["cells"]:
+        p = c["paper"] or {}
+        t, rw, e = c["time_docked_s"], c["total_reward"], c["success_at_200k"]["mean"]
+        lines.append(
+            f"| {c['recipe']} | {c['scenario']} | {len(c['seeds'])} | "
+            f"{c['success_mean']:.1f} ({', '.join(f'{s:.1f}' for s in c['success_per_seed'])}) | "
+            f"{_fmt_ci(c['success_ci95_over_seeds'])} | "
+            f"{_fmt_ci(c['success_ci95_over_episodes'])} | {p.get('success', '-')} | "
+            + (f"{t['mean']:.1f} +- {t['std']:.1f} | " if t["n"] else "- | ")
+            + (f"{p['time_mean']} +- {p['time_std']}" if p else "-")
+            + f" | {rw['mean']:.1f} +- {rw['std']:.1f} | "
+            + (f"{p['reward_mean']} +- {p['reward_std']}" if p else "-")
+            + f" | {'-' if e is None else f'{e:.1f}'} |"
+        )
+    lines += [
+        "",
+        table["statistics"] + ".",
+        "",
+        "| claim | recipe | difference (points) | 95 % CI | verdict |",
+        "|---|---|---|---|---|",
+    ]
+    for c in table["claims"]:
+        if "difference_points" in c:
+            lines.append(
+                f"| {c['claim']} | {c['recipe']} | {c['difference_points']:+.1f} | "
+                f"{_fmt_ci(c['ci95'])} | {c['verdict']} |"
+            )
+        else:
+            values = ", ".join(f"{k} {v:.1f} %" for k, v in sorted(c["values"].items()))
+            lines.append(f"| {c['claim']} | {c['best']} | {values} | - | - |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_curves(
+    by_scenario: dict[str, list[dict]], recipe: str, path: Path, footer: str = ""
+) -> Path:
+    """Figures 6-8 for one recipe: success, reward and time of the periodic evaluations
+    against env steps, one line per scenario (mean over seeds) and a band (min to max)."""
+    from dockingrl.plots import _save, plt
+
+    keys = [
+        ("eval/success_rate", "success %"),
+        ("eval/total_reward", "reward"),
+        ("eval/episode_time_s", "episode time s"),
+    ]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for scenario in [s for s in SCENARIO_ORDER if s in by_scenario]:
+        runs = by_scenario[scenario]
+        for ax, (key, label) in zip(axes, keys, strict=True):
+            curves = [r["curves"].get(key, []) for r in runs if r["curves"].get(key)]
+            if not curves:
+                continue
+            steps = np.array([s for s, _ in curves[0]], dtype=float)
+            values = np.array(
+                [np.interp(steps, [s for s, _ in c], [v for _, v in c]) for c in curves]
+            )
+            (line,) = ax.plot(steps, values.mean(0), label=f"{scenario} ({len(curves)} seeds)")
+            ax.fill_between(steps, values.min(0), values.max(0), color=line.get_color(), alpha=0.2)
+            ax.set_xlabel("env steps")
+            ax.set_ylabel(label)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{recipe}: periodic evaluations, mean over seeds (band: min to max)")
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    return _save(fig, path, footer=footer)

@@ -1,0 +1,110 @@
+"""``dockingrl table``: cells over seeds, intervals, success at 200 k steps, the claims, the
+figures and the pruning of policies, from fake finished runs."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from dockingrl.cli import main
+from dockingrl.table import EARLY_STEPS, write_table
+
+
+def fake_run(
+    root: Path,
+    recipe: str,
+    algo: str,
+    scenario: str,
+    seed: int,
+    success: float,
+    early: float = 50.0,
+) -> Path:
+    run = root / f"{recipe}__{scenario}__s{seed}"
+    run.mkdir(parents=True)
+    config = {"recipe": recipe, "algo": algo, "scenario": scenario, "seed": seed}
+    (run / "config.json").write_text(json.dumps(config))
+    (run / "summary.json").write_text(
+        json.dumps(
+            {
+                "frames": 500_000,
+                "train_wall_clock_s": 3600.0,
+                "machine": "m",
+                "code": {"commit": "abc", "dirty": False},
+            }
+        )
+    )
+    docked = round(5 * success)
+    (run / "eval.json").write_text(
+        json.dumps(
+            {
+                "episodes": 500,
+                "success_rate": success,
+                "time_s": {"n": docked, "mean": 40.0 + seed, "std": 2.0},
+                "total_reward": {"n": 500, "mean": 10.0 * seed, "std": 1.0},
+            }
+        )
+    )
+    steps = [100_000, 190_000, 210_000, 500_000]
+    values = [10.0, 30.0, early, success]
+    rows = ["step,key,value"] + [
+        f"{s},{k},{v}"
+        for s, v in zip(steps, values, strict=True)
+        for k in ("eval/success_rate", "eval/total_reward", "eval/episode_time_s")
+    ]
+    (run / "curves.csv").write_text("\n".join(rows) + "\n")
+    (run / "policy.pt").write_bytes(b"x")
+    return run
+
+
+def test_the_table_of_three_seeds(tmp_path):
+    runs = [
+        fake_run(tmp_path, "sac", "sac", "compound", s, v, early=e)
+        for s, v, e in ((0, 90.0, 40.0), (1, 94.0, 50.0), (2, 98.0, 60.0))
+    ] + [
+        fake_run(tmp_path, "sac", "sac", "noise", s, v)
+        for s, v in ((0, 60.0), (1, 70.0), (2, 65.0))
+    ]
+    runs.append(tmp_path / "unfinished")
+    runs[-1].mkdir()
+    table = write_table(runs, tmp_path / "out", prune_policies=True)
+    cells = {(c["recipe"], c["scenario"]): c for c in table["cells"]}
+    c = cells[("sac", "compound")]
+    assert c["success_mean"] == pytest.approx(94.0) and c["seeds"] == [0, 1, 2]
+    low, high = c["success_ci95_over_seeds"]
+    assert 90.0 <= low < 94.0 < high <= 98.0
+    low, high = c["success_ci95_over_episodes"]  # 1,410 of 1,500 episodes
+    assert low < 94.0 < high and high - low < 3.0
+    assert c["paper"]["success"] == 99.4
+    # the first periodic evaluation at or after 200 k steps
+    assert c["success_at_200k"] == {
+        "mean": 50.0,
+        "per_seed": [40.0, 50.0, 60.0],
+        "steps": [210_000] * 3,
+    }
+    assert EARLY_STEPS == 200_000
+    # time pooled over docked episodes of the three seeds: 450 + 470 + 490 episodes
+    assert c["time_docked_s"]["n"] == 1410
+    assert c["time_docked_s"]["mean"] == pytest.approx((450 * 40 + 470 * 41 + 490 * 42) / 1410)
+    claim = next(x for x in table["claims"] if x["claim"] == "compound >= noise")
+    assert claim["difference_points"] == pytest.approx(29.0)
+    assert claim["verdict"].startswith("holds") and claim["ci95"][0] > 0
+    out = tmp_path / "out"
+    assert (out / "figures_sac.png").stat().st_size > 10_000
+    md = (out / "table.md").read_text()
+    assert "| sac | compound | 3 | 94.0 (90.0, 94.0, 98.0) |" in md
+    # only the best seed of each cell keeps its policy
+    kept = sorted(p.parent.name for p in tmp_path.glob("*/policy.pt"))
+    assert kept == ["sac__compound__s2", "sac__noise__s1"]
+
+
+def test_an_overlapping_difference_is_not_a_finding(tmp_path):
+    runs = [fake_run(tmp_path, "td3", "td3", "compound", s, v) for s, v in ((0, 80.0), (1, 95.0))]
+    runs += [fake_run(tmp_path, "td3", "td3", "filtered", s, v) for s, v in ((0, 85.0), (1, 90.0))]
+    table = write_table(runs, tmp_path / "out")
+    claim = next(x for x in table["claims"] if x["claim"] == "compound >= filtered")
+    assert claim["verdict"].startswith("not resolved")
+
+
+def test_table_command_without_finished_runs_is_one_line(tmp_path):
+    with pytest.raises(SystemExit, match="no finished run"):
+        main(["table", str(tmp_path), "--out", str(tmp_path / "out")])
