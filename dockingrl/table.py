@@ -266,7 +266,13 @@ def markdown(table: dict) -> str:
             + (f"{p['reward_mean']} +- {p['reward_std']}" if p else "-")
             + f" | {'-' if e is None else f'{e:.1f}'} |"
         )
+    commits = sorted({x for c in table["cells"] for x in c["code"]})
+    machines = sorted({x for c in table["cells"] for x in c["machine"]})
+    hours = sum(sum(c["train_wall_clock_s"]) for c in table["cells"]) / 3600
     lines += [
+        "",
+        f"Code: commit {', '.join(x[:10] or '(unknown)' for x in commits)}. Machine: "
+        f"{'; '.join(machines)}. Training: {hours:.1f} h in all.",
         "",
         table["statistics"] + ".",
         "",
