@@ -180,6 +180,20 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
                     "verdict": verdict,
                 }
             )
+    for recipe in sorted({r for r, _ in cells}):
+        early = {
+            s: c["success_at_200k"]["mean"]
+            for (r, s), c in cells.items()
+            if r == recipe and c["success_at_200k"]["mean"] is not None
+        }
+        if len(early) > 1:
+            out.append(
+                {
+                    "claim": f"compound learns fastest ({recipe}: success at 200 k env steps)",
+                    "values": early,
+                    "best": max(early, key=early.get),
+                }
+            )
     early = {
         r: c["success_at_200k"]["mean"]
         for (r, s), c in cells.items()
