@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, get_type_hints
 
+from dockingrl.env.config import noise_scale_problem
 from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
 
 LOGGERS = ("wandb", "csv", "none")
@@ -205,7 +206,7 @@ class TrainConfig:
                 "keep_candidates",
                 "select_episodes",
             ),
-            positive=("range_noise_scale", "bearing_noise_scale", "contact_speed_target"),
+            positive=("contact_speed_target",),
             fraction=(
                 "following_current_fraction",
                 "lateral_current_fraction",
@@ -220,6 +221,13 @@ class TrainConfig:
                 "time_budget_s",
             ),
         )
+        for name, sigma in (
+            ("range_noise_scale", "range_noise_fraction"),
+            ("bearing_noise_scale", "bearing_noise"),
+        ):
+            problem = noise_scale_problem(getattr(self, name), sigma)
+            if problem:
+                raise ValueError(f"{type(self).__name__}.{name}: {problem}")
         if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
             fail("filter_params", f"scenario {self.scenario!r} has no filter")
         if not self.hidden or any(h < 1 for h in self.hidden):

@@ -11,7 +11,104 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+
+def _real(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+class Bound(NamedTuple):
+    """The physically sensible values of one config number: ``low`` to ``high`` (``low``
+    itself excluded when ``open_low``), in ``unit``, for the reason ``why``."""
+
+    low: float
+    high: float
+    unit: str
+    why: str = ""
+    open_low: bool = False
+
+    def holds(self, value: float) -> bool:
+        return (self.low < value if self.open_low else self.low <= value) and value <= self.high
+
+    def describe(self) -> str:
+        interval = f"{'(' if self.open_low else '['}{self.low:g}, {self.high:g}]"
+        unit = f" {self.unit}" if self.unit else ""
+        return f"must lie in {interval}{unit}" + (f": {self.why}" if self.why else "")
+
+
+_GAIN = Bound(0.0, 1e6, "", "PID gain, N or N m per unit of velocity error (or its integral)")
+_POSITION = Bound(-1e4, 1e4, "m", "10 km, beyond a USBL's range")
+_WEIGHT = Bound(0.0, 1e6, "", "reward weight")
+
+#: The accepted range of every number of :class:`DockingConfig` (each entry of a pair), with
+#: its reason. Every accepted config keeps the simulation finite in float32: the long rollouts of
+#: ``tests/test_validation.py`` at the extreme values show it. The paper's values lie well inside.
+BOUNDS: dict[str, Bound] = {
+    "dt": Bound(
+        1e-3,
+        0.5,
+        "s",
+        "the explicit-Euler velocity loops (the env's PID, the EKF's eq. 24 with k = 2.5 1/s) "
+        "diverge from about 0.7 s",
+    ),
+    "max_steps": Bound(1, 1_000_000, "steps", "55 h at dt = 0.2 s, longer than any approach"),
+    "surge_command_min": Bound(-10.0, 10.0, "m/s"),
+    "surge_command_max": Bound(-10.0, 10.0, "m/s"),
+    "yaw_rate_command_max": Bound(0.0, 10.0, "rad/s", open_low=True),
+    "mass": Bound(1.0, 1e5, "kg", "a 1 kg micro-AUV to a 100 t vehicle"),
+    "yaw_inertia": Bound(1e-2, 1e7, "kg m^2", "a 1 kg micro-AUV to a 100 t vehicle"),
+    "linear_damping": Bound(0.0, 1e5, "N s/m"),
+    "quadratic_damping": Bound(0.0, 1e5, "N s^2/m^2"),
+    "max_acceleration": Bound(0.0, 100.0, "m/s^2", "10 g", open_low=True),
+    "max_velocity": Bound(0.0, 10.0, "m/s", "twice the fastest AUVs'", open_low=True),
+    "max_thrust": Bound(0.0, 1e6, "N", open_low=True),
+    "surge_kp": _GAIN,
+    "surge_ki": _GAIN,
+    "surge_kd": _GAIN,
+    "yaw_kp": _GAIN,
+    "yaw_ki": _GAIN,
+    "yaw_kd": _GAIN,
+    "init_x": _POSITION,
+    "init_y": _POSITION,
+    "init_heading": Bound(-math.pi, math.pi, "rad"),
+    "ocean_current_range": Bound(-5.0, 5.0, "m/s", "the strongest tidal streams reach 5 m/s"),
+    "following_current_fraction": Bound(0.0, 1.0, "", "a probability"),
+    "lateral_current_fraction": Bound(0.0, 1.0, "", "a probability"),
+    "near_start_fraction": Bound(0.0, 1.0, "", "a probability"),
+    "near_start_x": _POSITION,
+    "near_start_y": _POSITION,
+    "range_noise_fraction": Bound(
+        0.0,
+        0.125,
+        "of the range",
+        "a reading rho (1 + sigma N) goes negative only for N < -1/sigma, 8 sigma away at "
+        "0.125 (odds 6e-16 a reading); Table 2 gives 0.025",
+    ),
+    "bearing_noise": Bound(
+        0.0, math.pi / 4, "rad", "45 deg; the wrapped reading of a wider sigma says little"
+    ),
+    "heading_noise": Bound(
+        0.0, math.pi / 4, "rad", "45 deg; the wrapped reading of a wider sigma says little"
+    ),
+    "velocity_noise": Bound(0.0, 1.0, "m/s", "the vehicle's top speed; Table 2 gives 0.02"),
+    "yaw_rate_noise": Bound(0.0, 1.0, "rad/s", "the vehicle's top yaw rate; Table 2: 0.0035"),
+    "max_dist": Bound(0.1, 1e4, "m", "the distance of eq. 4's normalisation"),
+    "thrust_weight": Bound(1e-3, 1e6, "N", "the divisor of eq. 5"),
+    "entry_speed_max": Bound(0.0, 10.0, "m/s", open_low=True),
+    "approach_distance": Bound(1e-2, 1e4, "m", "the divisor of eq. 6"),
+    "entry_speed_weight": _WEIGHT,
+    "aligned_weight": _WEIGHT,
+    "misaligned_weight": _WEIGHT,
+    "contact_weight": Bound(0.0, 1e6, "", "reward weight", open_low=True),
+    "dock_x": _POSITION,
+    "dock_y": _POSITION,
+    "contact_speed_tolerance": Bound(0.0, 10.0, "m/s"),
+}
 
 
 @dataclass(frozen=True)
@@ -92,60 +189,44 @@ class DockingConfig:
             raise ValueError(f"DockingConfig.{name}: {why} (got {getattr(self, name)!r})")
 
         for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
+            name, value = field.name, getattr(self, field.name)
+            if name == "noise":
+                if not isinstance(value, bool):
+                    fail(name, "must be True or False")
+            elif name == "max_steps":
+                if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                    fail(name, "must be an integer")
+            elif field.type.startswith("tuple"):
+                if not (isinstance(value, tuple) and len(value) == 2 and all(map(_real, value))):
+                    fail(name, "must be a (low, high) tuple of two numbers")
+            elif not _real(value):
+                fail(name, "must be a number")
             values = value if isinstance(value, tuple) else (value,)
-            if any(isinstance(v, float) and not math.isfinite(v) for v in values):
-                fail(field.name, "must be finite")
-        for name in (
-            "dt",
-            "mass",
-            "yaw_inertia",
-            "max_acceleration",
-            "max_velocity",
-            "max_thrust",
-            "max_dist",
-            "thrust_weight",
-            "approach_distance",
-            "entry_speed_max",
-            "contact_weight",
-            "yaw_rate_command_max",
-        ):
-            if getattr(self, name) <= 0:
-                fail(name, "must be > 0")
-        if not isinstance(self.max_steps, int) or self.max_steps < 1:
-            fail("max_steps", "must be an integer >= 1")
-        for name in (
-            "linear_damping",
-            "quadratic_damping",
-            "surge_kp",
-            "surge_ki",
-            "surge_kd",
-            "yaw_kp",
-            "yaw_ki",
-            "yaw_kd",
-            "range_noise_fraction",
-            "bearing_noise",
-            "heading_noise",
-            "velocity_noise",
-            "yaw_rate_noise",
-            "entry_speed_weight",
-            "aligned_weight",
-            "misaligned_weight",
-            "contact_speed_tolerance",
-        ):
-            if getattr(self, name) < 0:
-                fail(name, "must be >= 0")
-        for name in (
-            "following_current_fraction",
-            "lateral_current_fraction",
-            "near_start_fraction",
-        ):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                fail(name, "must lie in [0, 1]")
+            if not all(math.isfinite(v) for v in values):
+                fail(name, "must be finite")
+            bound = BOUNDS.get(name)
+            if bound is not None and not all(bound.holds(v) for v in values):
+                fail(name, ("each entry " if isinstance(value, tuple) else "") + bound.describe())
         if self.surge_kp == 0 and self.surge_ki == 0:
             fail("surge_kp", "surge PID needs a proportional or integral gain")
         if self.yaw_kp == 0 and self.yaw_ki == 0:
             fail("yaw_kp", "yaw PID needs a proportional or integral gain")
+        for axis, inertia in (("surge", "mass"), ("yaw", "yaw_inertia")):
+            radius = self.velocity_loop_radius(axis)
+            if radius >= 1.0:
+                fail(
+                    f"{axis}_kp",
+                    f"the {axis} PID loop diverges with these gains, dt = {self.dt:g} s and "
+                    f"{inertia} = {getattr(self, inertia):g} (spectral radius {radius:.3g} >= 1): "
+                    f"lower the gains or dt, or raise {inertia}",
+                )
+        slope = self.linear_damping + 2.0 * self.quadratic_damping * self.max_velocity
+        if self.dt * slope / self.mass >= 2.0:
+            fail(
+                "linear_damping",
+                f"the unactuated sway stepped at dt = {self.dt:g} s diverges: "
+                "dt * (linear_damping + 2 quadratic_damping max_velocity) / mass must be < 2",
+            )
         if self.surge_command_min >= self.surge_command_max:
             fail("surge_command_min", "must be < surge_command_max")
         ranges = ("init_x", "init_y", "init_heading", "ocean_current_range", "dock_x", "dock_y")
@@ -153,8 +234,6 @@ class DockingConfig:
             low, high = getattr(self, name)
             if not low < high:
                 fail(name, "empty range: needs low < high")
-        if not (-math.pi <= self.init_heading[0] and self.init_heading[1] <= math.pi):
-            fail("init_heading", "must lie within [-pi, pi]")
         if self.dock_x[0] <= self.init_x[1]:
             fail(
                 "dock_x", "the contact box must not overlap the start area (dock_x[0] > init_x[1])"
@@ -166,6 +245,27 @@ class DockingConfig:
                 "the contact box must not overlap the near start box (dock_x[0] > near_start_x[1])",
             )
 
+    def velocity_loop_radius(self, axis: str) -> float:
+        """Spectral radius of the ``axis`` (``"surge"`` or ``"yaw"``) velocity loop, the PID of
+        :func:`~dockingrl.env.dynamics.pid_thrust` and the explicit-Euler step of eq. 37
+        linearised with the steepest damping slope ``K_dl + 2 K_qdl max_velocity``, unclipped.
+        Below 1 the loop settles; at or above 1 a step-to-step oscillation grows until the
+        thrust and acceleration clips hold it."""
+        kp, ki, kd = (getattr(self, f"{axis}_{gain}") for gain in ("kp", "ki", "kd"))
+        inertia = self.mass if axis == "surge" else self.yaw_inertia
+        slope = self.linear_damping + 2.0 * self.quadratic_damping * self.max_velocity
+        dt, m = self.dt, inertia
+        # state (v, integral, previous error); error = -v for a zero set-point
+        full = np.array(
+            [
+                [1 - dt * (kp + slope) / m - dt * dt * ki / m - kd / m, dt * ki / m, -kd / m],
+                [-dt, 1.0, 0.0],
+                [-1.0, 0.0, 0.0],
+            ]
+        )
+        keep = [0, 1, 2] if ki else [0, 2]  # without ki the integral never acts
+        return float(np.abs(np.linalg.eigvals(full[np.ix_(keep, keep)])).max())
+
     def replace(self, **changes) -> DockingConfig:
         """Return a copy with ``changes`` applied (validated again)."""
         return dataclasses.replace(self, **changes)
@@ -173,7 +273,15 @@ class DockingConfig:
     def scale_usbl_noise(self, range_scale: float = 1.0, bearing_scale: float = 1.0):
         """A copy whose USBL range and bearing sigmas (Table 2) are multiplied by these
         factors: the sensor-mismatch world of ``--range-noise-scale`` and
-        ``--bearing-noise-scale`` (the filter keeps Table 2)."""
+        ``--bearing-noise-scale`` (the filter keeps Table 2). A scale that takes a sigma out of
+        :data:`BOUNDS` is refused, named."""
+        for name, scale, sigma in (
+            ("range_scale", range_scale, "range_noise_fraction"),
+            ("bearing_scale", bearing_scale, "bearing_noise"),
+        ):
+            problem = noise_scale_problem(scale, sigma, getattr(self, sigma))
+            if problem:
+                raise ValueError(f"DockingConfig.scale_usbl_noise: {name} {problem}")
         return self.replace(
             range_noise_fraction=self.range_noise_fraction * range_scale,
             bearing_noise=self.bearing_noise * bearing_scale,
@@ -198,3 +306,18 @@ class DockingConfig:
             self.velocity_noise,
             self.yaw_rate_noise,
         )
+
+
+def noise_scale_problem(scale, sigma: str, base: float | None = None) -> str:
+    """Why ``scale`` may not multiply the sensor sigma ``sigma`` (``base``, Table 2's value by
+    default) of :class:`DockingConfig`: the product must stay within :data:`BOUNDS`; ``""``
+    when it may."""
+    base = getattr(DockingConfig, sigma) if base is None else base
+    high = BOUNDS[sigma].high
+    if _real(scale) and math.isfinite(scale) and 0 <= scale * base <= high:
+        return ""
+    top = f"{high / base:g}" if base else "any"
+    return (
+        f"must lie in [0, {top}] so that {sigma} ({base:g} x the scale) stays within "
+        f"[0, {high:g}] (got {scale!r})"
+    )

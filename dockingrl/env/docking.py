@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
@@ -56,7 +58,7 @@ class DockingEnv(EnvBase):
     | 1 | desired yaw rate ``w_d`` | -0.3 | 0.3 | rad/s |
 
     Actions outside the bounds are clipped to them; a NaN or infinite action raises
-    ``ValueError``, and so does an action of the wrong shape.
+    ``ValueError``, and so does an action of the wrong shape or a bool or complex one.
 
     ## Observation Space
 
@@ -123,6 +125,9 @@ class DockingEnv(EnvBase):
             rounding, faster for large batches; the first step pays the compilation). Not to be
             confused with TorchRL's own ``compile=`` option, which compiles the whole
             ``EnvBase.step``.
+        check_finite: a debug option: after every reset and step, check the outputs and the PID's
+            state for NaN and inf and raise ``FloatingPointError`` naming the entry, the first
+            env holding one and its step count. Off, it costs nothing.
 
     Examples:
         >>> env = DockingEnv(num_envs=4, seed=0)
@@ -142,9 +147,16 @@ class DockingEnv(EnvBase):
         seed: int | None = None,
         dtype: torch.dtype = torch.float32,
         compile_step: bool = False,
+        check_finite: bool = False,
     ) -> None:
-        if not isinstance(num_envs, int) or num_envs < 1:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, numbers.Integral):
+            raise TypeError(
+                f"num_envs must be a positive integer (int or numpy integer), got {num_envs!r} "
+                f"({type(num_envs).__name__})"
+            )
+        if num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        num_envs = int(num_envs)
         if config is None:
             config = DockingConfig()
         if not isinstance(config, DockingConfig):
@@ -152,6 +164,7 @@ class DockingEnv(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = num_envs
         self.config = config
+        self.check_finite = bool(check_finite)
         self.dtype = dtype
         self._make_specs()
         self._make_constants()
@@ -414,7 +427,7 @@ class DockingEnv(EnvBase):
             self._step_count = self._step_count.masked_fill(mask, 0)
         false = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         zero = torch.zeros(n, 1, dtype=dtype, device=dev)
-        return self._output(
+        out = self._output(
             observation=self._observe(),
             true_state=torch.cat((self._pose, self._velocity), dim=-1),
             done=false,
@@ -424,6 +437,29 @@ class DockingEnv(EnvBase):
             contact_score=zero,
             contact_speed=zero.clone(),
         )
+        if self.check_finite:
+            self._check_finite(out, "reset")
+        return out
+
+    def _check_finite(self, out: TensorDictBase, when: str) -> None:
+        """Raise ``FloatingPointError`` at the first entry holding a NaN or inf (``check_finite``):
+        the state (``true_state``, the PID's ``integral`` and ``previous_error``) before what
+        derives from it, so that the entry named is where it began."""
+        entries = {
+            "true_state": out["true_state"],
+            "integral": self._integral,
+            "previous_error": self._previous_error,
+            **{key: value for key, value in out.items() if value.is_floating_point()},
+        }
+        for key, value in entries.items():
+            finite = torch.isfinite(value).reshape(self.num_envs, -1).all(-1)
+            if not bool(finite.all()):
+                env = int((~finite).nonzero()[0, 0])
+                step = int(self._step_count[env, 0])
+                raise FloatingPointError(
+                    f"DockingEnv check_finite: {key!r} is not finite after {when} in env {env} "
+                    f"at its step {step}: {value[env].tolist()}"
+                )
 
     def _validated_action(
         self, action: torch.Tensor, batch_size: torch.Size | None = None
@@ -432,13 +468,22 @@ class DockingEnv(EnvBase):
         and clipped to the bounds of eq. 3, on the env's device and dtype."""
         batch = tuple(self.batch_size if batch_size is None else batch_size)
         expected = (*batch, ACTION_DIM)
+        if not isinstance(action, torch.Tensor):
+            raise TypeError(
+                f"action must be a torch.Tensor of shape {expected}, got {type(action).__name__}"
+            )
+        if action.dtype == torch.bool or action.is_complex():
+            raise ValueError(f"action must be a real-valued tensor, got dtype {action.dtype}")
         if tuple(action.shape) != expected:
             raise ValueError(
                 f"action must have shape {expected} (batch, [v_d, w_d]), got {tuple(action.shape)}"
             )
-        if not bool(torch.isfinite(action).all()):
+        finite = torch.isfinite(action).reshape(-1, ACTION_DIM).all(-1)
+        if not bool(finite.all()):
+            index = int((~finite).nonzero()[0, 0])
             raise ValueError(
-                "action contains NaN or inf; the docking env accepts finite actions only"
+                f"action must be finite, no NaN or inf; batch entry {index} (flattened) is "
+                f"{action.reshape(-1, ACTION_DIM)[index].tolist()}"
             )
         action = action.to(device=self.device, dtype=self.dtype)
         return clip_action(action, self._action_low, self._action_high)
@@ -463,7 +508,10 @@ class DockingEnv(EnvBase):
             action,
             noise,
         )
-        return self._output(**out)
+        out = self._output(**out)
+        if self.check_finite:
+            self._check_finite(out, "step")
+        return out
 
     def _sample_noise(self) -> torch.Tensor:
         shape = (self.num_envs, OBSERVATION_DIM)

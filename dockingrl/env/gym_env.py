@@ -26,9 +26,10 @@ _INFO_KEYS = ("success", "contact_score", "contact_speed", "step_count")
 class DockingGymEnv(gymnasium.Env):
     """The docking task as a ``gymnasium.Env``; see :class:`DockingEnv` for the full description.
 
-    Observations are float32 ``(6,)`` (eq. 2), actions float32 ``(2,)`` (eq. 3, clipped to the
-    bounds). ``info`` holds ``ocean_current``, ``true_state`` and, on the last step, ``success``,
-    ``contact_score`` and ``contact_speed``.
+    Observations are float32 ``(6,)`` (eq. 2), actions ``(2,)`` (eq. 3, clipped to the bounds;
+    any real dtype; a wrong shape, a bool, complex or text dtype, NaN or inf raise
+    ``ValueError``). ``info`` holds ``ocean_current``, ``true_state`` and, on the last step,
+    ``success``, ``contact_score`` and ``contact_speed``.
     """
 
     metadata = {"render_modes": []}
@@ -70,11 +71,33 @@ class DockingGymEnv(gymnasium.Env):
         self._td = self._env.reset()
         return self._td["observation"][0].numpy().astype(np.float32), self._info(self._td)
 
+    def _action(self, action) -> np.ndarray:
+        """``action`` as the float32 ``(2,)`` command the env applies: real numbers of shape
+        ``(2,)`` exactly (an array, list or tuple), finite, clipped to the bounds in float64 so
+        that a finite value beyond float32's range is clipped like any other."""
+        expected = f"a finite real action of shape ({ACTION_DIM},) [v_d, w_d]"
+        if action is None:
+            raise ValueError(f"action must be {expected}, got None")
+        try:
+            array = np.asarray(action)
+        except ValueError:
+            raise ValueError(f"action must be {expected}, got a ragged {action!r}") from None
+        if array.dtype.kind not in "iuf":
+            raise ValueError(
+                f"action must be {expected}, got dtype {array.dtype} of shape {array.shape}"
+            )
+        if array.shape != (ACTION_DIM,):
+            raise ValueError(f"action must be {expected}, got shape {array.shape}")
+        array = array.astype(np.float64)
+        if not np.isfinite(array).all():
+            raise ValueError(f"action must be {expected}, got {array.tolist()}")
+        low, high = self._env.config.action_low, self._env.config.action_high
+        return np.clip(array, low, high).astype(np.float32)
+
     def step(self, action):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        action = torch.as_tensor(np.asarray(action, dtype=np.float32)).reshape(1, ACTION_DIM)
-        self._td["action"] = action
+        self._td["action"] = torch.from_numpy(self._action(action)).reshape(1, ACTION_DIM)
         out = self._env.step(self._td)["next"]
         self._td = out.clone()
         return (
