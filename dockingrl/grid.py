@@ -388,7 +388,8 @@ def run_grid(
         )
     cpus = int(ray.cluster_resources().get("CPU", 1))
     limit = max_concurrent or max(1, cpus // grid.threads)
-    task = ray.remote(num_cpus=grid.threads, max_retries=0)(run_trial)
+    # one process per trial: it runs (and its summary records) the code of its own start
+    task = ray.remote(num_cpus=grid.threads, max_retries=0, max_calls=1)(run_trial)
     running: dict[Any, _Running] = {}
     ended = 0
     stop = {"signum": None, "stopping": False}
