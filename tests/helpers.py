@@ -1,11 +1,18 @@
 """Small builders shared by the tests: an untrained actor and a training config sized for a
-smoke run."""
+smoke run, and the repository's root for the files it commits."""
+
+from pathlib import Path
 
 import torch
 
 from dockingrl import make_env
 from dockingrl.agents.algorithms import build_actor
 from dockingrl.agents.config import make_config
+
+#: the repository's root, whatever folder pytest runs in
+REPO = Path(__file__).resolve().parent.parent
+#: the committed PPO compound policy (``results/ppo_compound_sis_lin/``)
+PPO_COMPOUND_POLICY = REPO / "results" / "ppo_compound_sis_lin" / "policy.pt"
 
 
 def tiny_actor(obs_dim, algo="sac", seed=0):

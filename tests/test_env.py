@@ -261,12 +261,20 @@ def test_gymnasium_registration_and_checker():
     assert obs.shape == (6,) and obs.dtype == np.float32
     obs2, _ = env.reset(seed=3)
     np.testing.assert_array_equal(obs, obs2)
-    total, done = 0.0, False
+    # step for step the batched env of one vehicle with the same seed
+    reference = DockingEnv(1, seed=3)
+    td = reference.reset()
+    np.testing.assert_array_equal(obs, td["observation"][0].numpy())
+    done = False
     while not done:
         obs, reward, terminated, truncated, info = env.step(np.array([0.5, 0.0], np.float32))
-        total += reward
+        td = reference.step(td.set("action", torch.tensor([[0.5, 0.0]])))["next"].clone()
+        np.testing.assert_array_equal(obs, td["observation"][0].numpy())
+        assert reward == float(td["reward"][0, 0])
+        assert (terminated, truncated) == (bool(td["terminated"]), bool(td["truncated"]))
         done = terminated or truncated
-    assert info["step_count"] <= 600 and np.isfinite(total)
+    assert terminated or info["step_count"] == 600
+    assert info["step_count"] == int(td["step_count"][0])
 
 
 def test_following_current_fraction_biases_only_the_training_draw():

@@ -8,7 +8,14 @@ from dockingrl import make_env
 from dockingrl.agents.managed_surge import ManagedSurgePolicy
 from dockingrl.cli import main as cli_main
 from dockingrl.env import DockingConfig
-from dockingrl.evaluation import base_env, evaluate, success_map, summarize, trajectories
+from dockingrl.evaluation import (
+    base_env,
+    evaluate,
+    run_episodes,
+    success_map,
+    summarize,
+    trajectories,
+)
 from dockingrl.plots import plot_success_map, plot_trajectories
 
 
@@ -105,9 +112,21 @@ def test_currents_outside_the_range_count_in_the_outer_thirds():
 
 def test_success_map_and_plots(tmp_path):
     result = success_map(ManagedSurgePolicy(), "noise", cells=3, trials=2, seed=1)
-    rate = torch.tensor(result["success_rate"])
-    assert rate.shape == (3, 3) and ((rate >= 0) & (rate <= 100)).all()
-    assert result["oc_x"] == pytest.approx([-0.3, 0.0, 0.3])
+    grid = [-0.3, 0.0, 0.3]
+    assert result["oc_x"] == pytest.approx(grid) and result["oc_y"] == pytest.approx(grid)
+    # the same 18 episodes by hand: trial t of cell (oc_y[i], oc_x[j]) is episode 6 i + 2 j + t
+    env = make_env("noise", 18, seed=1)
+    currents = [(grid[j], grid[i]) for i in range(3) for j in range(3) for _ in range(2)]
+    base_env(env).set_initial_state(ocean_current=torch.tensor(currents, dtype=torch.float64))
+    success = run_episodes(ManagedSurgePolicy(), env)["success"].double()
+    expected = [
+        [100.0 * float(success[6 * i + 2 * j : 6 * i + 2 * j + 2].mean()) for j in range(3)]
+        for i in range(3)
+    ]
+    assert result["success_rate"] == expected
+    transposed = [[expected[j][i] for j in range(3)] for i in range(3)]
+    assert expected != transposed, "a transposed map would pass"
+    assert result["mean_success_rate"] == pytest.approx(sum(map(sum, expected)) / 9)
     png = plot_success_map(result, tmp_path / "map.png")
     assert png.stat().st_size > 10_000
     cases = trajectories(
@@ -139,9 +158,14 @@ def test_cli_eval_writes_a_results_folder(tmp_path, capsys):
     )
     assert code == 0
     printed = capsys.readouterr().out
-    assert "managed_surge (paper) | noise | 73.7" in printed
     metrics = json.loads((out / "eval.json").read_text())
     assert metrics["episodes"] == 20 and "dockingrl eval" in metrics["command"]
+    # the command's defaults: seed 0, the paper's speed limit; its row, then the paper's
+    expected = evaluate(ManagedSurgePolicy(), "noise", 20, seed=0)
+    for key in ("success_rate", "total_reward", "time_s", "failures"):
+        assert metrics[key] == expected[key], key
+    row = f"| managed_surge | noise | {expected['success_rate']:.1f} |"
+    assert printed.index(row) < printed.index("| managed_surge (paper) | noise | 73.7 |")
     for name in ("success_map.json", "success_map.png", "trajectories.json", "trajectories.png"):
         assert (out / name).stat().st_size > 0, name
 

@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -94,19 +95,51 @@ def test_learned_parameters_round_trip_through_the_cli(tmp_path):
     assert (out / "curves.csv").stat().st_size > 0
 
 
+def by_hand(means, covs, rollouts, skip=10):
+    """The state errors, their covariances and the NEES after the first ``skip`` steps of
+    every episode, in numpy: ``(error, cov, nees)`` flattened, and ``nees`` per env."""
+    truth = rollouts["true_state"].double().numpy()
+    estimate = means.double().numpy()
+    error = estimate - truth[..., [0, 1, 2, 3, 5]]  # x, y, heading, surge, yaw rate
+    error[..., 2] = (error[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    cov = covs.double().numpy()
+    nees = np.einsum("tni,tnij,tnj->tn", error, np.linalg.inv(cov), error)
+    keep = (rollouts["step_count"] >= skip).numpy()
+    per_env = [nees[keep[:, n], n].mean() for n in range(keep.shape[1])]
+    return error[keep], cov[keep], nees[keep], np.array(per_env)
+
+
 def test_filter_evaluation_reports_rmse_and_nees(rollouts):
-    report = evaluate_filter(make_filter(DockingConfig()), rollouts)
-    assert report["samples"] > 1000
-    for key in ("rmse_position_m", "rmse_heading_rad", "rmse_surge_m_s", "rmse_yaw_rate_rad_s"):
-        assert 0 < report[key] < 1
-    low, high = report["nees_mean_bounds_95"]
-    assert low < 5 < high
-    low, high = report["nees_mean_ci95_over_runs"]
-    assert low < report["nees_mean"] < high
-    per_component = report["normalized_error_per_component"]
-    assert len(per_component) == 5 and all(v > 0 for v in per_component)
-    assert report["nees_step_bounds_95"][0] == pytest.approx(0.831, abs=0.05)
-    assert report["nees_step_bounds_95"][1] == pytest.approx(12.83, abs=0.1)
+    from scipy.stats import chi2
+
+    ekf = make_filter(DockingConfig())
+    report = evaluate_filter(ekf, rollouts)
+    with torch.no_grad():
+        means, covs, _, _ = run_filter(ekf, rollouts)
+    error, cov, nees, per_env = by_hand(means, covs, rollouts)
+    n = len(nees)
+    assert report["samples"] == n == 16 * (120 - 10)
+    close = {"rel": 1e-5}  # the report subtracts in float32, this in float64
+    assert report["rmse_position_m"] == pytest.approx(
+        np.sqrt((error[:, :2] ** 2).sum(-1).mean()), **close
+    )
+    for i, key in ((2, "rmse_heading_rad"), (3, "rmse_surge_m_s"), (4, "rmse_yaw_rate_rad_s")):
+        assert report[key] == pytest.approx(np.sqrt((error[:, i] ** 2).mean()), **close), key
+    assert report["nees_mean"] == pytest.approx(nees.mean(), **close)
+    assert report["normalized_error_per_component"] == pytest.approx(
+        (error**2 / np.diagonal(cov, axis1=-2, axis2=-1)).mean(0), **close
+    )
+    # the 95 % region of the mean of n chi-square(5) samples, and of one sample (the report's
+    # quantiles are Wilson and Hilferty's approximation, 4 % low in the lower tail of 5 dof)
+    assert report["nees_mean_bounds_95"] == pytest.approx(chi2.ppf([0.025, 0.975], 5 * n) / n)
+    assert report["nees_step_bounds_95"] == pytest.approx(chi2.ppf([0.025, 0.975], 5), rel=0.05)
+    low, high = report["nees_step_bounds_95"]
+    inside = ((nees >= low) & (nees <= high)).mean()
+    assert report["nees_fraction_in_step_bounds"] == pytest.approx(inside, abs=1e-12)
+    # the 95 % interval of the mean over the 16 independent runs (envs)
+    half = 1.96 * per_env.std(ddof=1) / np.sqrt(len(per_env))
+    expected = [per_env.mean() - half, per_env.mean() + half]
+    assert report["nees_mean_ci95_over_runs"] == pytest.approx(expected, **close)
 
 
 def test_mismatched_condition_and_bad_options():
@@ -361,10 +394,26 @@ def test_nis_is_the_normalised_innovation_of_each_prediction(rollouts):
     y = innovation(prior, data["observation"][t], data["ocean_current"][t]).double()
     expected = y.unsqueeze(-1).transpose(-1, -2) @ torch.linalg.inv(S) @ y.unsqueeze(-1)
     torch.testing.assert_close(nis[t - 1].double(), expected[..., 0, 0], rtol=1e-4, atol=1e-4)
+    # the report's NIS statistics over every step after the first 10 of an episode
+    from scipy.stats import chi2
+
     report = evaluate_filter(ekf, rollouts)
-    low, high = report["nis_mean_ci95_over_runs"]
-    assert report["nis_mean"] > 0 and low < report["nis_mean"] < high
-    assert 0 < report["nis_fraction_in_step_bounds"] <= 1
+    every: list[torch.Tensor] = []
+    with torch.no_grad():
+        run_filter(ekf, rollouts, nis=every)
+    values = torch.stack(every).double().numpy()  # (T - 1, N): steps 1 ... T - 1
+    keep = (rollouts["step_count"][1:] >= 10).numpy()
+    kept = values[keep]
+    assert report["nis_mean"] == pytest.approx(kept.mean(), rel=1e-9)
+    per_env = np.array([values[keep[:, n], n].mean() for n in range(keep.shape[1])])
+    half = 1.96 * per_env.std(ddof=1) / np.sqrt(len(per_env))
+    assert report["nis_mean_ci95_over_runs"] == pytest.approx(
+        [per_env.mean() - half, per_env.mean() + half], rel=1e-9
+    )
+    assert report["nis_step_bounds_95"] == pytest.approx(chi2.ppf([0.025, 0.975], 6), rel=0.05)
+    low, high = report["nis_step_bounds_95"]
+    inside = ((kept >= low) & (kept <= high)).mean()
+    assert report["nis_fraction_in_step_bounds"] == pytest.approx(inside, abs=1e-12)
 
 
 def test_innovation_whiteness_tells_white_from_correlated_innovations():

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 import torch
-from helpers import tiny_actor
+from helpers import PPO_COMPOUND_POLICY, tiny_actor
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -75,8 +75,22 @@ def test_onboard_policy_loads_learned_filter_params_with_their_range_sigma(tmp_p
 
 
 def test_onboard_policy_from_a_saved_policy_file():
-    policy = OnboardPolicy.from_file("results/ppo_compound_sis_lin/policy.pt")
-    assert policy.scenario == "compound" and policy.uses_filter
+    """It commands what the saved actor commands in the env of its scenario, read from the
+    file, and starts over after a reset."""
+    from dockingrl.agents.saving import load_policy, pipeline_options
+
+    policy = OnboardPolicy.from_file(PPO_COMPOUND_POLICY)
+    actor, info = load_policy(PPO_COMPOUND_POLICY)
+    assert policy.scenario == info["scenario"] == "compound" and policy.uses_filter
+    env = make_env("compound", 4, seed=2, **pipeline_options(info["config"]))
+    td = env.reset()
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(10):
+            expected = actor(td.select("observation"))["action"]
+            command = policy.act(td["observation"][..., :6], td["ocean_current"])
+            torch.testing.assert_close(command, expected, rtol=1e-5, atol=1e-6)
+            td = env.step(td.set("action", command))["next"]
+    policy.reset()
     z = torch.tensor([25.0, 0.2, 0.1, 0.5, 0.0, 0.0])
     first = policy.act(z, torch.tensor([0.1, -0.1]))
     assert first.shape == (2,) and bool(torch.isfinite(first).all())
@@ -103,7 +117,7 @@ def test_onboard_policy_refuses_bad_readings():
 def test_exported_onboard_program_runs_with_torch_alone(tmp_path):
     from dockingrl.onboard import export_onboard
 
-    policy = OnboardPolicy.from_file("results/ppo_compound_sis_lin/policy.pt")
+    policy = OnboardPolicy.from_file(PPO_COMPOUND_POLICY)
     path = export_onboard(policy, tmp_path / "onboard.pt2", batch=2)
     program = torch.export.load(path).module()
     env = make_env("compound", 2, seed=11, config=DockingConfig(max_steps=40))
@@ -145,7 +159,7 @@ def test_export_cli(tmp_path, capsys):
     from dockingrl.cli import main as cli_main
 
     out = tmp_path / "onboard.pt2"
-    policy = "results/ppo_compound_sis_lin/policy.pt"
+    policy = str(PPO_COMPOUND_POLICY)
     assert cli_main(["export", "--policy", policy, "--out", str(out), "--batch", "3"]) == 0
     assert out.stat().st_size > 0 and "3 vehicle(s)" in capsys.readouterr().out
     for bad in (["--batch", "0"], ["--policy", str(tmp_path / "none.pt")]):
