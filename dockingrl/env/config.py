@@ -96,7 +96,7 @@ BOUNDS: dict[str, Bound] = {
         0.0, math.pi / 4, "rad", "45 deg; the wrapped reading of a wider sigma says little"
     ),
     "velocity_noise": Bound(0.0, 1.0, "m/s", "the vehicle's top speed; Table 2 gives 0.02"),
-    "yaw_rate_noise": Bound(0.0, 1.0, "rad/s", "the vehicle's top yaw rate; Table 2: 0.0035"),
+    "yaw_rate_noise": Bound(0.0, 1.0, "rad/s", "the vehicle's top yaw rate; Table 2 gives 0.0035"),
     "max_dist": Bound(0.1, 1e4, "m", "the distance of eq. 4's normalisation"),
     "thrust_weight": Bound(1e-3, 1e6, "N", "the divisor of eq. 5"),
     "entry_speed_max": Bound(0.0, 10.0, "m/s", open_low=True),
