@@ -238,14 +238,18 @@ class Trainer:
         return self.run_dir / "checkpoints"
 
     def save_checkpoint(self) -> Path:
-        """Write a complete checkpoint folder, then point ``latest.json`` at it (one atomic
-        rename), then drop older ones: a crash at any point leaves a usable checkpoint."""
+        """Write a complete checkpoint folder (:mod:`dockingrl.checkpoint`), then point
+        ``latest.json`` at it (one atomic rename), then drop older ones: a crash at any point
+        leaves a usable checkpoint."""
+        from dockingrl.checkpoint import write_state
+
         path = self.checkpoint_root / f"step_{self.frames:010d}"
         tmp = path.with_name(path.name + ".tmp")
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
+        if self.agent.replay_buffer is not None and len(self.agent.replay_buffer):
+            self.agent.replay_buffer.dumps(tmp / "replay")
         state = {
-            "format": CHECKPOINT_FORMAT,
             "agent": self.agent.state_dict(),
             "frames": self.frames,
             "episodes": self.episodes,
@@ -256,9 +260,7 @@ class Trainer:
             "best": self.best,
             "candidates": self.candidates,
         }
-        torch.save(state, tmp / "state.pt")
-        if self.agent.replay_buffer is not None and len(self.agent.replay_buffer):
-            self.agent.replay_buffer.dumps(tmp / "replay")
+        write_state(tmp, state)
         shutil.rmtree(path, ignore_errors=True)
         tmp.rename(path)
         write_json(self.checkpoint_root / "latest.json", {"path": path.name, "frames": self.frames})
@@ -268,16 +270,27 @@ class Trainer:
         return path
 
     def load_checkpoint(self) -> bool:
-        latest = self.checkpoint_root / "latest.json"
-        if not latest.exists():
+        """Restore the checkpoint ``latest.json`` names; ``False`` where the run has none.
+        Raises :class:`~dockingrl.io.ArtifactError` for a damaged, crafted or older one, or
+        one that does not fit this run's agent."""
+        from dockingrl.checkpoint import latest_checkpoint, read_state
+        from dockingrl.io import ArtifactError, first_line
+
+        path = latest_checkpoint(self.checkpoint_root)
+        if path is None:
             return False
-        path = self.checkpoint_root / json.loads(latest.read_text())["path"]
-        state = torch.load(path / "state.pt", map_location="cpu", weights_only=False)
-        if state.get("format") != CHECKPOINT_FORMAT:
-            raise ValueError(f"{path} is not a dockingrl checkpoint")
-        self.agent.load_state_dict(state["agent"])
-        if (path / "replay").exists():
-            self.agent.replay_buffer.loads(path / "replay")
+        state = read_state(path)
+        if state["replay"] is not None and self.agent.replay_buffer is None:
+            raise ArtifactError(f"{path / 'state.pt'}: holds a replay buffer this run's agent lacks")
+        try:
+            self.agent.load_state_dict(state["agent"])
+            if state["replay"] is not None:
+                self.agent.replay_buffer.loads(path / "replay")
+            torch.set_rng_state(state["torch_rng"])
+        except (KeyError, IndexError, RuntimeError, TypeError, ValueError) as exc:
+            raise ArtifactError(
+                f"{path / 'state.pt'}: does not fit this run ({first_line(exc)})"
+            ) from None
         self.frames, self.episodes, self.elapsed = (
             state["frames"],
             state["episodes"],
@@ -287,7 +300,6 @@ class Trainer:
         best = state.get("best")
         self.candidates = state.get("candidates", [best] if best is not None else [])
         del self.candidates[self.cfg.keep_candidates :]
-        torch.set_rng_state(state["torch_rng"])
         return True
 
     def _drop_curves_after(self, frames: int) -> None:

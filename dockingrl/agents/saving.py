@@ -3,14 +3,39 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import fields
 from pathlib import Path
 
 import torch
 from torchrl.data import Bounded
 
-from dockingrl.io import atomic_write
+from dockingrl.io import (
+    ArtifactError,
+    first_line,
+    read_artifact,
+    read_old_artifact,
+    require_keys,
+    save_artifact,
+)
+from dockingrl.scenarios import OBSERVATION_PARTS, SCENARIOS, observation_layout
 
-FORMAT = "dockingrl.policy/1"
+FORMAT = "dockingrl.policy/2"
+#: version 1 had no content hash and no ``observation_layout``
+OLD_FORMATS = ("dockingrl.policy/1",)
+WHAT = "dockingrl policy file"
+KEYS = (
+    "algo",
+    "scenario",
+    "config",
+    "obs_dim",
+    "action_low",
+    "action_high",
+    "max_dist",
+    "state_dict",
+    "filter_params",
+    "metadata",
+    "observation_layout",
+)
 
 
 def pipeline_options(config: Mapping) -> dict:
@@ -29,6 +54,24 @@ def pipeline_options(config: Mapping) -> dict:
     return options
 
 
+def policy_layout(scenario: str, obs_dim: int, config: Mapping) -> dict:
+    """The observation layout a policy declares: the ``scenario`` it was trained on, the
+    entries of its observation (:func:`~dockingrl.scenarios.observation_layout` with the
+    options of its training ``config``, a dict), ``obs_dim`` and ``action_repeat``."""
+    options = pipeline_options(config)
+    keys = observation_layout(
+        scenario,
+        observe_current=bool(options.get("observe_current")),
+        observe_command=bool(options.get("observe_command")),
+    )
+    return {
+        "scenario": scenario,
+        "keys": list(keys),
+        "obs_dim": int(obs_dim),
+        "action_repeat": int(options.get("action_repeat", 1)),
+    }
+
+
 def save_policy(
     path: str | Path,
     actor: torch.nn.Module,
@@ -39,15 +82,17 @@ def save_policy(
     filter_params: Mapping | None = None,
     **metadata,
 ) -> Path:
-    """Write the actor's weights with what is needed to rebuild it (atomically), and the
-    payload of the learned filter it was trained with (``filter_params``, from
-    :func:`~dockingrl.transforms.params.read_filter_params`), so that the policy file is whole
-    without the filter's file."""
+    """Write the actor's weights with what is needed to rebuild it and the observation
+    layout it reads (:func:`policy_layout`), as an artefact of :mod:`dockingrl.io`
+    (atomically), and the payload of the learned filter it was trained with
+    (``filter_params``, from :func:`~dockingrl.transforms.params.read_filter_params`), so that
+    the policy file is whole without the filter's file."""
+    config_dict = config.to_dict()
     payload = {
         "format": FORMAT,
         "algo": config.algo,
         "scenario": config.scenario,
-        "config": config.to_dict(),
+        "config": config_dict,
         "obs_dim": obs_dim,
         "action_low": action_spec.space.low.reshape(-1)[-2:].cpu().tolist(),
         "action_high": action_spec.space.high.reshape(-1)[-2:].cpu().tolist(),
@@ -55,34 +100,150 @@ def save_policy(
         "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()},
         "filter_params": None if filter_params is None else dict(filter_params),
         "metadata": metadata,
+        "observation_layout": policy_layout(config.scenario, obs_dim, config_dict),
     }
-    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+    return save_artifact(path, payload)
+
+
+def read_policy(path: str | Path) -> dict:
+    """The payload of a policy file written by :func:`save_policy`, checked: format, hash,
+    keys, a known algorithm and scenario, config fields that algorithm's config has. Raises
+    :class:`~dockingrl.io.ArtifactError`."""
+    from dockingrl.agents.config import CONFIGS
+
+    payload = read_artifact(path, WHAT, FORMAT, OLD_FORMATS)
+    require_keys(path, payload, WHAT, KEYS)
+    _check_payload(path, payload, CONFIGS)
+    return payload
+
+
+def _check_payload(path, payload: dict, configs: Mapping) -> None:
+    require_keys(path, payload, WHAT, KEYS[:-1])
+    algo, config = payload["algo"], payload["config"]
+    if not isinstance(algo, str) or algo not in configs:
+        raise ArtifactError(f"{path}: unknown algorithm {algo!r} (known: {', '.join(configs)})")
+    if not isinstance(payload["scenario"], str) or payload["scenario"] not in SCENARIOS:
+        raise ArtifactError(f"{path}: unknown scenario {payload['scenario']!r}")
+    if not isinstance(config, dict) or not isinstance(payload["state_dict"], dict):
+        raise ArtifactError(f"{path}: its config and state_dict must be dicts")
+    extra = sorted(set(config) - {f.name for f in fields(configs[algo])})
+    if extra:
+        raise ArtifactError(
+            f"{path}: config fields unknown to dockingrl's {algo}: {', '.join(extra)}"
+        )
 
 
 def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     """Rebuild a saved actor. Returns ``(actor, info)`` where ``info`` has ``algo``,
-    ``scenario``, ``config``, ``metadata`` and ``filter_params`` (the learned filter's payload
-    it was trained with, or ``None``: Table 1's filter, or a policy saved before policies
-    carried it, whose ``config["filter_params"]`` names the file). The actor acts
-    deterministically under ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate`
-    sets)."""
+    ``scenario``, ``config``, ``metadata``, ``observation_layout`` (see :func:`check_layout`),
+    ``path`` and ``filter_params`` (the learned filter's payload it was trained with, or
+    ``None``: Table 1's filter, or a policy saved before policies carried it, whose
+    ``config["filter_params"]`` names the file). The actor acts deterministically under
+    ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate` sets). Raises
+    :class:`~dockingrl.io.ArtifactError` for a missing, damaged, crafted or older file."""
+    payload = read_policy(path)
+    actor = _rebuild(path, payload)
+    info = {k: payload[k] for k in ("algo", "scenario", "config", "metadata")}
+    info["filter_params"] = payload["filter_params"]
+    info["observation_layout"] = payload["observation_layout"]
+    info["path"] = str(path)
+    return actor.to(device).eval(), info
+
+
+def _rebuild(path, payload: dict) -> torch.nn.Module:
+    """The actor of a checked policy payload, its weights loaded."""
     from dockingrl.agents.algorithms import build_actor
     from dockingrl.agents.config import CONFIGS
 
-    payload = torch.load(Path(path), map_location="cpu", weights_only=True)
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise ValueError(f"{path} is not a dockingrl policy file ({FORMAT})")
-    fields = dict(payload["config"])
-    fields["hidden"] = tuple(fields["hidden"])
-    config = CONFIGS[payload["algo"]](**fields)
-    low = torch.tensor(payload["action_low"])
-    high = torch.tensor(payload["action_high"])
-    spec = Bounded(low=low, high=high, shape=low.shape)
-    actor = build_actor(config, payload["obs_dim"], spec, payload["max_dist"])
-    actor.load_state_dict(payload["state_dict"])
-    info = {k: payload[k] for k in ("algo", "scenario", "config", "metadata")}
-    info["filter_params"] = payload.get("filter_params")
-    return actor.to(device).eval(), info
+    config = dict(payload["config"])
+    try:
+        config["hidden"] = tuple(config["hidden"])
+        cfg = CONFIGS[payload["algo"]](**config)
+        low = torch.tensor(payload["action_low"], dtype=torch.float32)
+        high = torch.tensor(payload["action_high"], dtype=torch.float32)
+        spec = Bounded(low=low, high=high, shape=low.shape)
+        actor = build_actor(cfg, payload["obs_dim"], spec, payload["max_dist"])
+        actor.load_state_dict(payload["state_dict"])
+    except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+        raise ArtifactError(
+            f"{path}: does not rebuild a {payload['algo']} actor ({first_line(exc)})"
+        ) from None
+    return actor
+
+
+def check_layout(
+    info: Mapping,
+    scenario: str,
+    obs_dim: int,
+    *,
+    observe_current: bool = False,
+    observe_command: bool = False,
+    action_repeat: int | None = None,
+) -> None:
+    """Check that an env of ``scenario`` built with these :func:`~dockingrl.make_env` options,
+    whose ``observation`` has ``obs_dim`` numbers, gives the policy of ``info`` (from
+    :func:`load_policy`) the observation it was trained on: the same entries in the same
+    order, the same size, and (where ``action_repeat`` is given) the same action repeat. A
+    different scenario of the same layout passes (``no_noise`` and ``noise``). Raises
+    :class:`~dockingrl.io.ArtifactError` with one line saying what differs."""
+    trained = info["observation_layout"]
+    keys = observation_layout(
+        scenario, observe_current=observe_current, observe_command=observe_command
+    )
+    given = {
+        "scenario": scenario,
+        "keys": list(keys),
+        "obs_dim": int(obs_dim),
+        "action_repeat": trained["action_repeat"] if action_repeat is None else action_repeat,
+    }
+    if all(given[k] == trained[k] for k in ("keys", "obs_dim", "action_repeat")):
+        return
+    name = info.get("path", "the policy")
+    raise ArtifactError(
+        f"policy {name} was trained on {_describe(trained)} but the env gives {_describe(given)}"
+    )
+
+
+def _describe(layout: Mapping) -> str:
+    text = f"scenario {layout['scenario']!r} (observation: {', '.join(layout['keys'])}; "
+    text += f"{layout['obs_dim']} numbers"
+    if layout["action_repeat"] != 1:
+        text += f"; action_repeat {layout['action_repeat']}"
+    return text + ")"
+
+
+def upgrade_policy(path: str | Path) -> str:
+    """Rewrite the policy file ``path`` of an older format in the current one (atomically):
+    its observation layout derived from its config, the learned filter it carries upgraded
+    too. Returns what was done."""
+    from dockingrl.agents.config import CONFIGS
+    from dockingrl.transforms.params import FORMAT as FILTER_FORMAT
+    from dockingrl.transforms.params import upgrade_payload
+
+    payload = read_old_artifact(path, WHAT)
+    found = payload.get("format")
+    if found == FORMAT:
+        return f"{path}: already {FORMAT}"
+    if found not in OLD_FORMATS:
+        raise ArtifactError(f"{path}: not a {WHAT}: its format is {found!r}")
+    payload.setdefault("filter_params", None)
+    payload.setdefault("metadata", {})
+    _check_payload(path, payload, CONFIGS)
+    carried = payload["filter_params"]
+    if carried is not None and carried.get("format") != FILTER_FORMAT:
+        payload["filter_params"] = upgrade_payload(carried)
+    layout = policy_layout(payload["scenario"], payload["obs_dim"], payload["config"])
+    numbers = sum(len(OBSERVATION_PARTS[k]) for k in layout["keys"])
+    if numbers != layout["obs_dim"]:
+        raise ArtifactError(
+            f"{path}: its config gives an observation of {numbers} numbers "
+            f"({', '.join(layout['keys'])}), its actor reads {layout['obs_dim']}"
+        )
+    payload["observation_layout"] = layout
+    payload["format"] = FORMAT
+    _rebuild(path, payload)
+    save_artifact(path, payload)
+    return f"{path}: {found} -> {FORMAT}"
 
 
 def training_filter(info: Mapping):

@@ -7,16 +7,28 @@ from pathlib import Path
 
 import torch
 
-from dockingrl.io import atomic_write
+from dockingrl.io import (
+    UPGRADE_COMMAND,
+    ArtifactError,
+    first_line,
+    read_artifact,
+    read_old_artifact,
+    require_keys,
+    save_artifact,
+)
 
-FORMAT = "dockingrl.filter_params/4"
+FORMAT = "dockingrl.filter_params/5"
 #: version 1 stored ``Q``'s Cholesky factor with absolute off-diagonal entries
 FORMAT_V1 = "dockingrl.filter_params/1"
 #: version 2 had no context model (``noise_context``)
 FORMAT_V2 = "dockingrl.filter_params/2"
 #: version 3 had no ``range_noise_from`` (always the measured range)
 FORMAT_V3 = "dockingrl.filter_params/3"
-READABLE = (FORMAT, FORMAT_V3, FORMAT_V2, FORMAT_V1)
+#: version 4 had no content hash
+FORMAT_V4 = "dockingrl.filter_params/4"
+OLD_FORMATS = (FORMAT_V4, FORMAT_V3, FORMAT_V2, FORMAT_V1)
+WHAT = "dockingrl filter-parameter file"
+KEYS = ("process_noise", "measurement_noise", "noise_context", "range_noise_from")
 
 
 def save_filter_params(transform, path: str | Path, **metadata) -> Path:
@@ -39,20 +51,14 @@ def save_filter_params(transform, path: str | Path, **metadata) -> Path:
             "range_noise_from": transform.range_noise_from,
             "metadata": metadata,
         }
-    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+    return save_artifact(path, payload)
 
 
 def read_filter_params(path: str | Path) -> dict:
-    """The payload of a file written by :func:`save_filter_params`, checked."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no filter-parameter file at {path}")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # a foreign or damaged file fails to unpickle in many ways
-        raise ValueError(f"{path} is not a dockingrl filter-parameter file: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") not in READABLE:
-        raise ValueError(f"{path} is not a dockingrl filter-parameter file ({FORMAT})")
+    """The payload of a file written by :func:`save_filter_params`, checked (format, hash,
+    keys). Raises :class:`~dockingrl.io.ArtifactError`."""
+    payload = read_artifact(path, WHAT, FORMAT, OLD_FORMATS)
+    require_keys(path, payload, WHAT, KEYS)
     return payload
 
 
@@ -62,21 +68,63 @@ def load_filter_params(transform, source: str | Path | Mapping) -> dict:
     policy carries); returns the payload."""
     if isinstance(source, Mapping):
         payload = dict(source)
-        if payload.get("format") not in READABLE:
-            raise ValueError(f"not dockingrl filter parameters ({FORMAT})")
+        found = payload.get("format")
+        if found in OLD_FORMATS:
+            raise ArtifactError(
+                f"filter parameters of the older format {found}; convert the file that holds "
+                f"them once with: {UPGRADE_COMMAND} PATH"
+            )
+        if found != FORMAT:
+            raise ArtifactError(f"not dockingrl filter parameters ({FORMAT}): format {found!r}")
+        require_keys("filter parameters", payload, WHAT, KEYS)
     else:
         payload = read_filter_params(source)
-    process = dict(payload["process_noise"])
-    transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in process)
-    if payload["format"] == FORMAT_V1:
-        # v1: L = diag(sigma) + C_abs; now L = diag(sigma) (I + C): C = C_abs / sigma_row
-        rows, _ = torch.tril_indices(process["log_diag"].numel(), process["log_diag"].numel(), -1)
-        process["off_diag"] = process["off_diag"] / process["log_diag"].exp()[rows]
-    transform.process_noise.load_state_dict(process)
-    transform.measurement_noise.load_state_dict(payload["measurement_noise"])
-    transform.range_noise_from = payload.get("range_noise_from", "measurement")
-    context = payload.get("noise_context")
-    transform.set_context_noise(context is not None)
-    if context is not None:
-        transform.noise_context.load_state_dict(context)
+    try:
+        transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in payload["process_noise"])
+        transform.process_noise.load_state_dict(payload["process_noise"])
+        transform.measurement_noise.load_state_dict(payload["measurement_noise"])
+        transform.range_noise_from = payload["range_noise_from"]
+        context = payload["noise_context"]
+        transform.set_context_noise(context is not None)
+        if context is not None:
+            transform.noise_context.load_state_dict(context)
+    except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+        name = source if not isinstance(source, Mapping) else "filter parameters"
+        raise ArtifactError(f"{name}: do not fit the EKF ({first_line(exc)})") from None
     return payload
+
+
+def upgrade_payload(payload: Mapping) -> dict:
+    """A payload of an older format (:data:`OLD_FORMATS`) in the current one: version 1's
+    off-diagonal entries of ``Q``'s factor made relative, and the defaults of the entries
+    later versions added (no context model, the range from the measurement)."""
+    payload = dict(payload)
+    found = payload.get("format")
+    if found not in OLD_FORMATS:
+        raise ValueError(f"not filter parameters of an older format: {found!r}")
+    process = dict(payload["process_noise"])
+    if found == FORMAT_V1:
+        # v1: L = diag(sigma) + C_abs; now L = diag(sigma) (I + C): C = C_abs / sigma_row
+        n = process["log_diag"].numel()
+        rows, _ = torch.tril_indices(n, n, -1)
+        process["off_diag"] = process["off_diag"] / process["log_diag"].exp()[rows]
+    payload["process_noise"] = process
+    payload.setdefault("noise_context", None)
+    payload.setdefault("range_noise_from", "measurement")
+    payload.setdefault("metadata", {})
+    payload["format"] = FORMAT
+    return payload
+
+
+def upgrade_filter_params(path: str | Path) -> str:
+    """Rewrite the filter-parameter file ``path`` of an older format in the current one
+    (atomically); returns what was done."""
+    payload = read_old_artifact(path, WHAT)
+    found = payload.get("format")
+    if found == FORMAT:
+        return f"{path}: already {FORMAT}"
+    if found not in OLD_FORMATS:
+        raise ArtifactError(f"{path}: not a {WHAT}: its format is {found!r}")
+    require_keys(path, payload, WHAT, ("process_noise", "measurement_noise"))
+    save_artifact(path, upgrade_payload(payload))
+    return f"{path}: {found} -> {FORMAT}"
