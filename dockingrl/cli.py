@@ -7,11 +7,22 @@ import argparse
 import shlex
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from dockingrl.arguments import (
+    COUNT,
+    FINITE,
+    NON_NEGATIVE,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    Parser,
+    UsageError,
+    torch_device,
+)
 from dockingrl.env import DockingConfig
 from dockingrl.scenarios import SCENARIOS
 
@@ -28,6 +39,7 @@ FIGURE_10_CASES = [
 
 
 _ARGV: list[str] = []
+DEBUG_HELP = "on an error, show its traceback instead of one line"
 
 
 def command_line() -> str:
@@ -50,13 +62,12 @@ def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
         from dockingrl.agents.managed_surge import ManagedSurgePolicy
 
         return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}, {}
-    path = Path(spec)
-    if not path.exists():
-        raise SystemExit(f"error: --policy {spec!r} is neither 'managed_surge' nor a file")
+    if not Path(spec).exists():
+        raise FileNotFoundError(f"--policy {spec!r} is neither 'managed_surge' nor a file")
     from dockingrl.agents.saving import load_policy as load_saved
     from dockingrl.agents.saving import pipeline_options
 
-    policy, meta = load_saved(path, device=device)
+    policy, meta = load_saved(spec, device=device)
     options = pipeline_options(meta["config"])
     return policy, meta.get("algo", "agent"), meta.get("scenario"), options, meta
 
@@ -88,7 +99,7 @@ def evaluation_world(args: argparse.Namespace, scenario: str, info: dict) -> tup
     if params == "none":
         params = None
     elif isinstance(params, str) and not Path(params).is_file():
-        raise SystemExit(f"error: filter parameters {params!r}: no such file")
+        raise FileNotFoundError(f"--filter-params {params!r}: no such file")
     if params is not None:
         kwargs["filter_params"] = params
     line = f"as the policy was trained: {', '.join(taken)}" if taken else ""
@@ -105,9 +116,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
         args.policy, use_filter=args.use_filter, device=args.device
     )
     scenario = args.scenario or trained_scenario or "noise"
+    if trained:
+        from dockingrl.onboard import check_env_layout
+
+        check_env_layout(trained, scenario, options)
     if args.mirrored:
         if not trained:
-            raise SystemExit("error: --mirrored needs a saved agent (--policy PATH)")
+            raise UsageError("--mirrored needs a saved agent (--policy PATH)")
         from dockingrl.agents.algorithms import MirroredPolicy
         from dockingrl.scenarios import mirror_signs
 
@@ -118,6 +133,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(taken)
     env_kwargs = {"device": args.device, **options, **world}
     out = Path(args.out) if args.out else None
+    if out is not None and out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"--out {out}: a file, not a folder")
     start = time.perf_counter()
     metrics = evaluate(
         policy,
@@ -180,10 +197,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from dockingrl.onboard import OnboardPolicy, export_onboard
 
-    if args.batch < 1:
-        raise SystemExit(f"error: --batch must be >= 1, got {args.batch}")
-    if not Path(args.policy).is_file():
-        raise SystemExit(f"error: --policy {args.policy!r} is not a file")
     policy = OnboardPolicy.from_file(args.policy, filter_params=args.filter_params)
     path = export_onboard(policy, args.out, batch=args.batch)
     print(
@@ -243,9 +256,12 @@ def cmd_filter_figure(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="dockingrl", description="AUV docking with deep RL: evaluation and training."
+    parser = Parser(
+        prog="dockingrl",
+        description="AUV docking with deep RL: evaluation and training. An error is one line "
+        "on stderr and exit status 1 (2: a bad command line, 130: interrupted).",
     )
+    parser.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
 
     ev = sub.add_parser(
@@ -265,11 +281,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="default: the agent's training scenario, or 'noise' for the controller",
     )
-    ev.add_argument("--episodes", type=int, default=500, help="number of episodes (paper: 500)")
-    ev.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    ev.add_argument("--episodes", type=COUNT, default=500, help="number of episodes (paper: 500)")
+    ev.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="evaluation seed")
     ev.add_argument("--out", default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
-    ev.add_argument("--map-trials", type=int, default=10, help="episodes per map cell")
+    ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")
     ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")
     ev.add_argument(
         "--use-filter",
@@ -278,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ev.add_argument(
         "--speed-tolerance",
-        type=float,
+        type=NON_NEGATIVE,
         default=0.0,
         help="m/s added to the 0.3 m/s contact-speed limit of the success test",
     )
@@ -291,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     for sensor in ("range", "bearing"):
         ev.add_argument(
             f"--{sensor}-noise-scale",
-            type=float,
+            type=POSITIVE,
             default=None,
             help=f"env's USBL {sensor} noise x this; default: the agent's training value (1)",
         )
@@ -307,18 +323,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="evaluate the agent mirrored through the docking axis (y -> -y): a policy that "
         "treats both sides alike scores the same (dockingrl.agents.algorithms.MirroredPolicy)",
     )
-    ev.add_argument("--threads", type=int, default=2, help="torch CPU threads")
-    ev.add_argument("--device", default="cpu", help="torch device of the envs and the policy")
+    ev.add_argument("--threads", type=COUNT, default=2, help="torch CPU threads")
+    ev.add_argument(
+        "--device", type=torch_device, default="cpu", help="torch device of the envs and the policy"
+    )
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=cmd_eval)
 
     ff = sub.add_parser("filter-figure", help="raw vs filtered vs true observation (Figure 5)")
     ff.add_argument("--out", default="results/filter", help="results folder")
-    ff.add_argument("--seed", type=int, default=0)
+    ff.add_argument("--seed", type=NON_NEGATIVE_INT, default=0)
     ff.add_argument(
-        "--start", type=float, nargs=3, default=[-28.0, 5.0, 0.3], metavar=("X", "Y", "ALPHA")
+        "--start", type=FINITE, nargs=3, default=[-28.0, 5.0, 0.3], metavar=("X", "Y", "ALPHA")
     )
-    ff.add_argument("--current", type=float, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y"))
+    ff.add_argument(
+        "--current", type=FINITE, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y")
+    )
     ff.set_defaults(func=cmd_filter_figure)
 
     ex = sub.add_parser(
@@ -327,25 +347,88 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ex.add_argument("--policy", required=True, help="policy.pt written by training")
     ex.add_argument("--out", required=True, help="the program's file (.pt2)")
-    ex.add_argument("--batch", type=int, default=1, help="vehicles per call")
+    ex.add_argument("--batch", type=COUNT, default=1, help="vehicles per call")
     ex.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
     ex.set_defaults(func=cmd_export)
 
     from dockingrl.filter_cli import add_filter_commands
     from dockingrl.grid_cli import add_grid_commands
     from dockingrl.train_cli import add_training_commands
+    from dockingrl.upgrade_cli import add_upgrade_command
 
     add_training_commands(sub)
     add_grid_commands(sub)
     add_filter_commands(sub)
+    add_upgrade_command(sub)
+    for command in sub.choices.values():  # --debug also after the command's name
+        command.add_argument(
+            "--debug", action="store_true", default=argparse.SUPPRESS, help=DEBUG_HELP
+        )
     return parser
 
 
+class CommandFailed(SystemExit):
+    """How a failed ``dockingrl`` command ends, after printing its one line on stderr:
+    ``code`` is the exit status, ``str()`` the line."""
+
+    def __init__(self, line: str, code: int) -> None:
+        super().__init__(code)
+        self.line = line
+
+    def __str__(self) -> str:
+        return self.line
+
+
+def _raised_by_dockingrl(exc: BaseException) -> bool:
+    """Whether the innermost frame of ``exc``'s traceback is dockingrl's own code."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    package = Path(__file__).resolve().parent
+    return tb is not None and package in Path(tb.tb_frame.f_code.co_filename).resolve().parents
+
+
+def error_line(exc: BaseException, command: str | None) -> tuple[str, int]:
+    """The one line (after ``dockingrl: error: ``) and the exit status that report ``exc``:
+    2 for a bad command line, 130 for an interrupt, 1 otherwise. Errors of bad input (values,
+    files, the checks of dockingrl's own code) say their message; anything else is a bug and
+    says so."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, UsageError):
+        return f"{text} (see {exc.prog or f'dockingrl {command}'} --help)", 2
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", 130
+    if isinstance(exc, SystemExit):  # SystemExit("error: ...") of code that predates this
+        return text.removeprefix("error: "), 1
+    if isinstance(exc, (ValueError, OSError)) or (
+        isinstance(exc, RuntimeError) and _raised_by_dockingrl(exc)
+    ):
+        return text, 1
+    if len(text) > 300:
+        text = text[:297] + "..."
+    gist = f"{type(exc).__name__}: {text}" if text != type(exc).__name__ else text
+    return f"{gist} (unexpected: run with --debug for the traceback)", 1
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run ``dockingrl`` with ``argv`` (default: the process's arguments) and return its exit
+    status. An error prints one line on stderr (with ``--debug``: its traceback) and raises
+    :class:`CommandFailed`, a ``SystemExit`` with the status."""
     argv = list(sys.argv[1:] if argv is None else argv)
     _ARGV[:] = argv
-    args = build_parser().parse_args(argv)
-    return args.func(args)
+    debug, command = "--debug" in argv, None
+    try:
+        args = build_parser().parse_args(argv)
+        debug, command = args.debug, args.command
+        return args.func(args)
+    except BaseException as exc:
+        if isinstance(exc, SystemExit) and not isinstance(exc.code, str):
+            raise
+        if debug:
+            traceback.print_exc()
+        line, code = error_line(exc, command)
+        print(f"dockingrl: error: {line}", file=sys.stderr)
+        raise CommandFailed(f"dockingrl: error: {line}", code) from None
 
 
 if __name__ == "__main__":

@@ -333,6 +333,8 @@ def success_map(
         ``{"oc_x": [...], "oc_y": [...], "success_rate": matrix}`` with
         ``success_rate[i][j]`` (%) for ``oc_y[i]``, ``oc_x[j]``.
     """
+    if cells < 1 or trials < 1:
+        raise ValueError(f"success_map needs cells >= 1 and trials >= 1, got {cells} and {trials}")
     grid = current_grid(cells, limit)
     oc_y, oc_x = np.meshgrid(grid, grid, indexing="ij")
     currents = np.stack((oc_x.ravel(), oc_y.ravel()), -1).repeat(trials, axis=0)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import torch
 
+from dockingrl.arguments import COUNT, NON_NEGATIVE, NON_NEGATIVE_INT, POSITIVE, UsageError, integer
 from dockingrl.filter_learning import (
     LEARN_R,
     OBJECTIVES,
@@ -25,26 +26,28 @@ HELD_OUT_SEED = 1_000
 
 def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     d = FilterFit()
-    parser.add_argument("--num-envs", type=int, default=d.num_envs, help="envs per rollout batch")
-    parser.add_argument("--steps", type=int, default=d.steps, help="steps recorded per env")
-    parser.add_argument("--window", type=int, default=d.window, help="truncated-BPTT window")
-    parser.add_argument("--epochs", type=int, default=d.epochs, help="passes over the rollouts")
-    parser.add_argument("--lr", type=float, default=d.lr, help="Adam learning rate (log-params)")
+    parser.add_argument("--num-envs", type=COUNT, default=d.num_envs, help="envs per rollout batch")
+    parser.add_argument("--steps", type=COUNT, default=d.steps, help="steps recorded per env")
+    parser.add_argument("--window", type=integer(2), default=d.window, help="truncated-BPTT window")
+    parser.add_argument("--epochs", type=COUNT, default=d.epochs, help="passes over the rollouts")
+    parser.add_argument("--lr", type=POSITIVE, default=d.lr, help="Adam learning rate (log-params)")
     parser.add_argument(
         "--behaviour",
         choices=["managed_surge", "random"],
         default=d.behaviour,
         help="behaviour policy of the rollouts",
     )
-    parser.add_argument("--seed", type=int, default=d.seed, help="seed of the training rollouts")
+    parser.add_argument(
+        "--seed", type=NON_NEGATIVE_INT, default=d.seed, help="seed of the training rollouts"
+    )
     parser.add_argument(
         "--noise-scale",
-        type=float,
+        type=POSITIVE,
         default=1.0,
         help="env's USBL range and bearing noise x this (the mismatch; the "
         "hand-tuned filter keeps Table 2's R)",
     )
-    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--threads", type=COUNT, default=2, help="torch CPU threads")
     parser.add_argument(
         "--manoeuvre-noise",
         action="store_true",
@@ -60,13 +63,13 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--whiteness",
-        type=float,
+        type=NON_NEGATIVE,
         default=d.whiteness,
         help="nll: weight of a penalty on the whitened innovations' correlation between steps "
         "(see dockingrl.filter_learning.innovation_whiteness; 0: none)",
     )
     parser.add_argument(
-        "--lags", type=int, default=d.lags, help="lags of the whiteness penalty (1..window-1)"
+        "--lags", type=COUNT, default=d.lags, help="lags of the whiteness penalty (1..window-1)"
     )
     parser.add_argument(
         "--range-noise-from",
@@ -85,11 +88,20 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--context-epochs",
-        type=int,
+        type=COUNT,
         default=None,
         help="filter-ablation: passes of the context fits, after the constant fit they start "
         "from (default: --epochs)",
     )
+
+
+def _check_fit_arguments(args: argparse.Namespace) -> None:
+    """Refuse, before any rollout, a window the recorded steps cannot fill and whiteness lags
+    the window cannot hold."""
+    if args.steps <= args.window:
+        raise UsageError(f"--steps ({args.steps}) must exceed --window ({args.window})")
+    if args.whiteness > 0 and args.lags >= args.window:
+        raise UsageError(f"--lags ({args.lags}) must be below --window ({args.window})")
 
 
 def _fit(
@@ -141,6 +153,7 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
     from dockingrl.scenarios import make_filter
     from dockingrl.training import RunLogger
 
+    _check_fit_arguments(args)
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -216,7 +229,8 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
     from dockingrl.transforms.params import save_filter_params
 
     if args.whiteness:
-        raise SystemExit("error: --whiteness applies to learn-filter, not to the ablation table")
+        raise UsageError("--whiteness applies to learn-filter, not to the ablation table")
+    _check_fit_arguments(args)
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     start = time.perf_counter()
@@ -358,7 +372,7 @@ def add_filter_commands(sub) -> None:
     ab.add_argument("--out", default="results/filter_ablation", help="results folder")
     ab.add_argument(
         "--mismatch",
-        type=float,
+        type=POSITIVE,
         default=2.0,
         help="scale of the env's range and bearing noise in the mismatched condition",
     )
@@ -370,12 +384,16 @@ def add_filter_commands(sub) -> None:
         help="PPO compound agents with the hand-tuned and a learned filter, mismatched noise",
     )
     pc.add_argument("--filter-params", required=True, help="learned Q/R file (learn-filter)")
-    pc.add_argument("--noise-scale", type=float, default=2.0, help="env's range/bearing noise x")
-    pc.add_argument("--total-steps", type=int, default=2_000_000, help="env steps per agent")
+    pc.add_argument("--noise-scale", type=POSITIVE, default=2.0, help="env's range/bearing noise x")
+    pc.add_argument("--total-steps", type=COUNT, default=2_000_000, help="env steps per agent")
     pc.add_argument("--out", default="results/filter_ablation", help="results folder")
     pc.add_argument("--runs", default="runs", help="folder of the training runs")
     pc.add_argument(
-        "--seeds", type=int, nargs="+", default=[0], help="training seeds (one agent each)"
+        "--seeds",
+        type=NON_NEGATIVE_INT,
+        nargs="+",
+        default=[0],
+        help="training seeds (one agent each)",
     )
     pc.add_argument(
         "--set",
@@ -396,15 +414,17 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     from dockingrl.io import atomic_write, write_json
     from dockingrl.training import train
 
+    if not Path(args.filter_params).is_file():
+        raise FileNotFoundError(f"--filter-params {args.filter_params!r}: no such file")
     fixed = {"scenario", "total_steps", "range_noise_scale", "bearing_noise_scale"}
     fixed |= {"filter_params", "out", "run_name", "logger", "seed"}
     try:
         extra = parse_overrides("ppo", args.set)
     except ValueError as exc:
-        raise SystemExit(f"error: --set {exc}") from exc
+        raise UsageError(f"--set {exc}") from exc
     if fixed & set(extra):
-        raise SystemExit(
-            f"error: --set cannot change {', '.join(sorted(fixed & set(extra)))}: "
+        raise UsageError(
+            f"--set cannot change {', '.join(sorted(fixed & set(extra)))}: "
             "the comparison sets it (see its own options)"
         )
     rows, results = [], {"command": command_line(), "seeds": list(args.seeds), "agents": {}}

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import argparse
 
+from dockingrl.arguments import COUNT, NON_NEGATIVE, NON_NEGATIVE_INT, POSITIVE
+
 
 def cmd_recipes(args: argparse.Namespace) -> int:
     from dockingrl.recipes import load_recipe, recipe_names
 
     if args.name:
-        try:
-            recipe = load_recipe(args.name)
-        except ValueError as exc:
-            raise SystemExit(f"error: {exc}") from None
+        recipe = load_recipe(args.name)
         print(f"{recipe.name} ({recipe.algo}): {recipe.description}")
         for key, value in recipe.make_config().to_dict().items():
             mark = "*" if key in recipe.config else " "
@@ -29,10 +28,7 @@ def cmd_recipes(args: argparse.Namespace) -> int:
 def cmd_grid(args: argparse.Namespace) -> int:
     from dockingrl.grid import load_grid, run_grid
 
-    try:
-        grid = load_grid(args.grid, out=args.out, collect=args.collect)
-    except ValueError as exc:
-        raise SystemExit(f"error: {exc}") from None
+    grid = load_grid(args.grid, out=args.out, collect=args.collect)
     if args.list:
         from dockingrl.grid import finished_summary
 
@@ -67,12 +63,9 @@ def cmd_table(args: argparse.Namespace) -> int:
     from dockingrl.cli import command_line
     from dockingrl.table import write_table
 
-    try:
-        table = write_table(
-            args.runs, args.out, prune_policies=args.prune_policies, command=command_line()
-        )
-    except ValueError as exc:
-        raise SystemExit(f"error: {exc}") from None
+    table = write_table(
+        args.runs, args.out, prune_policies=args.prune_policies, command=command_line()
+    )
     print(f"{len(table['cells'])} cells written to {args.out} (table.md, table.json, figures)")
     return 0
 
@@ -94,17 +87,20 @@ def add_grid_commands(sub) -> None:
     gr.add_argument("--address", help="an existing Ray cluster to run on (default: local Ray)")
     gr.add_argument("--out", help="folder of the run folders (default: the grid file's)")
     gr.add_argument("--collect", help="folder for finished trials' small files (default: file's)")
-    gr.add_argument("--max-concurrent", type=int, default=None, help="trials at once")
+    gr.add_argument("--max-concurrent", type=COUNT, default=None, help="trials at once")
     gr.add_argument(
         "--hours",
-        type=float,
+        type=NON_NEGATIVE,
         default=0.0,
         help="start only trials expected to end within this many hours (0: no limit)",
     )
     gr.add_argument(
-        "--stop-after", type=int, default=0, help="start no more trials once this many ended"
+        "--stop-after",
+        type=NON_NEGATIVE_INT,
+        default=0,
+        help="start no more trials once this many ended",
     )
-    gr.add_argument("--view-every", type=float, default=60.0, help="seconds between views")
+    gr.add_argument("--view-every", type=POSITIVE, default=60.0, help="seconds between views")
     gr.add_argument("--list", action="store_true", help="list the trials and their state, run none")
     gr.add_argument(
         "--table",

@@ -15,6 +15,7 @@ between, as in training; the filter still runs every step.
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from dockingrl.env.dynamics import clip_action
 from dockingrl.scenarios import (
     FILTERED_OBSERVATION_KEYS,
     SCENARIOS,
+    make_env,
     make_filter,
     observation_layout,
 )
@@ -35,6 +37,26 @@ from dockingrl.transforms.ekf import measurement_function
 from dockingrl.transforms.repeat import check_action_repeat
 
 OBS_DIM = 6
+
+
+def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
+    """Check that the saved policy of ``info`` (from
+    :func:`~dockingrl.agents.saving.load_policy`) reads what the env of ``scenario`` built by
+    :func:`~dockingrl.make_env` with ``options`` (``observe_current``, ``observe_command``,
+    ``action_repeat``) gives: :func:`~dockingrl.agents.saving.check_layout` against that env's
+    observation spec. Raises :class:`~dockingrl.io.ArtifactError`, one line saying what
+    differs."""
+    from dockingrl.agents.saving import check_layout
+
+    env = make_env(scenario, 1, **options)
+    check_layout(
+        info,
+        scenario,
+        env.observation_spec["observation"].shape[-1],
+        observe_current=bool(options.get("observe_current")),
+        observe_command=bool(options.get("observe_command")),
+        action_repeat=options.get("action_repeat", 1),
+    )
 
 
 class OnboardStep(nn.Module):
@@ -169,14 +191,10 @@ class OnboardPolicy(nn.Module):
         from dockingrl.agents.saving import load_policy, pipeline_options, training_filter
 
         actor, info = load_policy(path, device=device)
-        config = info["config"]
+        options = pipeline_options(info["config"])
+        check_env_layout(info, info["scenario"], options)
         params = filter_params if filter_params is not None else training_filter(info)
-        policy = cls(
-            actor,
-            info["scenario"],
-            filter_params=params,
-            **pipeline_options(config),
-        )
+        policy = cls(actor, info["scenario"], filter_params=params, **options)
         return policy.to(device)
 
     def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:
@@ -246,4 +264,4 @@ def export_onboard(policy: OnboardPolicy, path: str | Path, batch: int = 1) -> P
     return atomic_write(path, lambda tmp: torch.export.save(program, tmp))
 
 
-__all__ = ["OnboardPolicy", "OnboardStep", "export_onboard"]
+__all__ = ["OnboardPolicy", "OnboardStep", "check_env_layout", "export_onboard"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 
 from dockingrl.agents.config import (
     CONFIG_FIELDS,
@@ -14,6 +15,7 @@ from dockingrl.agents.config import (
     config_from_args,
     overrides_from_args,
 )
+from dockingrl.arguments import UsageError
 
 
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,23 +51,30 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser)
 
 
+def _from_command_line(make: Callable[[], TrainConfig]) -> TrainConfig:
+    """``make()``, its refusal of a value or an option of the command line raised as a
+    :class:`~dockingrl.arguments.UsageError`."""
+    try:
+        return make()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
+    except SystemExit as exc:  # overrides_from_args and config_from_args refuse this way
+        if not isinstance(exc.code, str):
+            raise
+        raise UsageError(exc.code.removeprefix("error: ")) from exc
+
+
 def config_from_recipe(args: argparse.Namespace) -> TrainConfig:
     """The config of ``args.recipe`` with the fields given on the command line on top."""
     from dockingrl.recipes import load_recipe
 
     if args.preset is not None:
-        raise SystemExit("error: --preset and --recipe exclude each other")
-    try:
-        recipe = load_recipe(args.recipe)
-    except ValueError as exc:
-        raise SystemExit(f"error: {exc}") from None
+        raise UsageError("--preset and --recipe exclude each other")
+    recipe = load_recipe(args.recipe)
     if args.algo is not None and args.algo != recipe.algo:
-        raise SystemExit(f"error: --algo {args.algo} but recipe {recipe.name!r} is {recipe.algo}")
+        raise UsageError(f"--algo {args.algo} but recipe {recipe.name!r} is {recipe.algo}")
     args.algo = recipe.algo
-    try:
-        return recipe.make_config(**overrides_from_args(args))
-    except ValueError as exc:
-        raise SystemExit(f"error: {exc}") from None
+    return _from_command_line(lambda: recipe.make_config(**overrides_from_args(args)))
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -87,8 +96,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg, given = config_from_recipe(args), None
     else:
         if args.algo is None:
-            raise SystemExit("error: --algo or --recipe is required (unless --resume RUN_DIR)")
-        cfg, given = config_from_args(args), None
+            raise UsageError("--algo or --recipe is required (unless --resume RUN_DIR)")
+        cfg, given = _from_command_line(lambda: config_from_args(args)), None
     try:
         result = train(
             cfg,
@@ -100,10 +109,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     except TrainingInterrupted as exc:  # SIGTERM / SIGINT: checkpointed, resumable
         print(exc, file=sys.stderr)
         return 128 + exc.signum
-    except (ValueError, FileNotFoundError) as exc:
-        if not args.resume:
-            raise
-        raise SystemExit(f"error: {exc}") from exc
     s, e = result["summary"], result["eval"]
     print(
         f"{s['algo']} {s['scenario']}: {s['frames']} env steps ({s['num_envs']} envs), "

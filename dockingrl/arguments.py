@@ -1,0 +1,92 @@
+"""Command-line argument checking for ``dockingrl``: a parser whose errors are one line, the
+error that a command raises for a command line it cannot run, and argparse types that refuse
+out-of-range numbers as usage errors."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+class UsageError(ValueError):
+    """A command line that cannot run as given (exit status 2); ``prog`` names the command
+    whose ``--help`` explains it."""
+
+    def __init__(self, message: str, prog: str | None = None) -> None:
+        super().__init__(message)
+        self.prog = prog
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` that raises :class:`UsageError` instead of printing its usage and
+    exiting, so that ``dockingrl`` reports every error the same way, in one line."""
+
+    def error(self, message: str):
+        raise UsageError(message, self.prog)
+
+
+def integer(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer ``>= minimum``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text!r}")
+        return value
+
+    return parse
+
+
+def number(*, above: float | None = None, minimum: float | None = None) -> Callable[[str], float]:
+    """An argparse type: a finite number, ``> above`` and ``>= minimum`` where given."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+        if above is not None and not value > above:
+            raise argparse.ArgumentTypeError(f"must be > {above:g}, got {text!r}")
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum:g}, got {text!r}")
+        return value
+
+    return parse
+
+
+#: the usual argparse types: a count of at least 1, a seed or count of at least 0, a finite
+#: number, a positive one and a non-negative one
+COUNT = integer(1)
+NON_NEGATIVE_INT = integer(0)
+FINITE = number()
+POSITIVE = number(above=0.0)
+NON_NEGATIVE = number(minimum=0.0)
+
+
+def torch_device(text: str) -> str:
+    """An argparse type: a torch device this machine has (``cpu``, ``cuda``, ``cuda:1``)."""
+    import torch
+
+    try:
+        parsed = torch.device(text)
+    except RuntimeError:
+        raise argparse.ArgumentTypeError(f"not a torch device: {text!r}") from None
+    if parsed.type == "cuda":
+        if not torch.cuda.is_available():
+            raise argparse.ArgumentTypeError(f"{text!r}: CUDA is not available on this machine")
+        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            )
+    elif parsed.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise argparse.ArgumentTypeError(f"{text!r}: MPS is not available on this machine")
+    elif parsed.type != "cpu":
+        raise argparse.ArgumentTypeError(f"{text!r}: expected cpu, cuda[:N] or mps")
+    return text

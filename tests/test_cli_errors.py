@@ -1,0 +1,215 @@
+"""Every ``dockingrl`` error is one line on stderr and a non-zero exit status (2: a bad command
+line, 130: interrupted, 1: anything else); the traceback only with ``--debug``."""
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from dockingrl import make_env
+from dockingrl.agents.algorithms import build_actor
+from dockingrl.agents.config import make_config
+from dockingrl.agents.saving import save_policy
+from dockingrl.cli import main
+
+
+def tiny_policy(path, scenario="compound", obs_dim=12, **config):
+    """Save an untrained SAC actor (2 x 8 hidden) reading ``obs_dim`` numbers as a policy
+    trained on ``scenario`` with the config fields ``config``."""
+    env = make_env("noise", 1, seed=0)
+    cfg = make_config("sac", "paper", scenario=scenario, hidden=(8, 8), **config)
+    torch.manual_seed(0)
+    actor = build_actor(cfg, obs_dim, env.action_spec, 30.0)
+    save_policy(path, actor, cfg, obs_dim, env.action_spec, 30.0)
+    return path
+
+
+def fails(capsys, argv, code):
+    """Run ``dockingrl argv`` in-process; check that it exits with ``code`` after one line on
+    stderr, and return that line."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == code, err
+    assert err.count("\n") == 1 and err.startswith("dockingrl: error: "), err
+    assert "Traceback" not in err
+    return err.strip()
+
+
+@pytest.fixture(scope="module")
+def compound_policy(tmp_path_factory):
+    return tiny_policy(tmp_path_factory.mktemp("policy") / "policy.pt")
+
+
+def bad_policy_file(kind, folder, good):
+    path = folder / f"{kind}.pt"
+    if kind == "directory":
+        path.mkdir()
+    elif kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "truncated":
+        path.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    elif kind == "random bytes":
+        path.write_bytes(bytes(torch.randint(0, 256, (4096,), dtype=torch.uint8).tolist()))
+    elif kind == "text":
+        path.write_text("policy = 'a good one'\n")
+    return path
+
+
+@pytest.mark.parametrize("kind", ["directory", "empty", "truncated", "random bytes", "text"])
+def test_a_bad_policy_file_is_one_line_naming_it(kind, tmp_path, capsys, compound_policy):
+    path = bad_policy_file(kind, tmp_path, compound_policy)
+    line = fails(capsys, ["eval", "--policy", str(path), "--episodes", "2", "--quiet"], 1)
+    assert str(path) in line
+    line = fails(capsys, ["export", "--policy", str(path), "--out", str(tmp_path / "p.pt2")], 1)
+    assert str(path) in line
+
+
+def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
+    line = fails(capsys, ["eval", "--policy", str(tmp_path / "none.pt"), "--quiet"], 1)
+    assert "neither 'managed_surge' nor a file" in line
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["eval", "--episodes", "0"], "argument --episodes: must be an integer >= 1, got '0'"),
+        (["eval", "--episodes", "-5"], "argument --episodes: must be an integer >= 1"),
+        (["eval", "--threads", "0"], "argument --threads: must be an integer >= 1, got '0'"),
+        (["eval", "--map-trials", "0"], "argument --map-trials: must be an integer >= 1"),
+        (["eval", "--seed", "-1"], "argument --seed: must be an integer >= 0"),
+        (["eval", "--speed-tolerance", "nan"], "argument --speed-tolerance: must be a finite"),
+        (["eval", "--range-noise-scale", "0"], "argument --range-noise-scale: must be > 0"),
+        (["eval", "--bearing-noise-scale", "inf"], "must be a finite number, got 'inf'"),
+        (["eval", "--episodes", "ten"], "argument --episodes: expected an integer, got 'ten'"),
+        (["eval", "--device", "gpu0"], "argument --device: not a torch device: 'gpu0'"),
+        (["eval", "--scenario", "calm"], "argument --scenario: invalid choice: 'calm'"),
+        (["export", "--policy", "p.pt", "--out", "p.pt2", "--batch", "0"], "--batch: must be"),
+        (["filter-figure", "--current", "nan", "0"], "argument --current: must be a finite"),
+        (["learn-filter", "--window", "1"], "argument --window: must be an integer >= 2"),
+        (["learn-filter", "--lr", "0"], "argument --lr: must be > 0"),
+        (["learn-filter", "--steps", "20", "--window", "50"], "--steps (20) must exceed"),
+        (["filter-ablation", "--mismatch", "-2"], "argument --mismatch: must be > 0"),
+        (["filter-ablation", "--whiteness", "0.5"], "--whiteness applies to learn-filter"),
+        (["ppo-filter-comparison", "--filter-params", "f.pt", "--total-steps", "0"], "must be"),
+        (["grid", "table6", "--max-concurrent", "0"], "argument --max-concurrent: must be"),
+        (["grid", "table6", "--view-every", "0"], "argument --view-every: must be > 0"),
+        (["grid", "table6", "--hours", "-1"], "argument --hours: must be >= 0"),
+        (["train", "--algo", "ppo", "--scenario", "calm"], "PPOConfig.scenario: unknown"),
+        (["train", "--algo", "ppo", "--threads", "0"], "PPOConfig.threads: must be >= 1"),
+        (["train", "--algo", "sac", "--total-steps", "0"], "SACConfig.total_steps: must be"),
+        (["train", "--algo", "sac", "--lr", "nan"], "SACConfig.lr: must be finite"),
+        (["train", "--recipe", "sac", "--epochs", "3"], "--epochs does not apply to sac"),
+        (["train", "--recipe", "sac", "--preset", "fast"], "exclude each other"),
+        (["train", "--total-steps", "256"], "--algo or --recipe is required"),
+        (["eval", "--mirrored"], "--mirrored needs a saved agent"),
+        ([], "the following arguments are required: command"),
+        (["evaluate"], "argument command: invalid choice: 'evaluate'"),
+    ],
+)
+def test_a_bad_command_line_is_one_usage_line(argv, says, capsys):
+    line = fails(capsys, argv, 2)
+    assert says in line
+    assert line.endswith("--help)")  # points to the command's help
+
+
+def test_unknown_recipe_is_one_line(capsys, tmp_path):
+    line = fails(capsys, ["train", "--recipe", "nope", "--out", str(tmp_path)], 1)
+    assert "unknown recipe 'nope'" in line
+    assert "unknown recipe 'nope'" in fails(capsys, ["recipes", "nope"], 1)
+
+
+def test_a_compound_policy_in_the_noise_scenario_says_both_layouts(capsys, compound_policy):
+    argv = ["eval", "--policy", str(compound_policy), "--episodes", "2", "--quiet"]
+    line = fails(capsys, [*argv, "--scenario", "noise"], 1)
+    assert str(compound_policy) in line
+    assert "filtered_observation; 12 numbers" in line and "observation; 6 numbers" in line
+    assert "'compound'" in line and "'noise'" in line
+    # the layout it was trained on passes the check: eval goes on to refuse an --out that is
+    # a file (before it runs any episode)
+    out = compound_policy.parent / "eval.json"
+    out.write_text("{}")
+    line = fails(capsys, [*argv, "--scenario", "compound", "--out", str(out)], 1)
+    assert line == f"dockingrl: error: --out {out}: a file, not a folder"
+
+
+def test_a_policy_whose_actor_does_not_read_its_layout_is_refused(tmp_path, capsys):
+    """A file that says its policy reads the current (14 numbers) with an actor reading 12:
+    eval, the onboard policy and export all refuse it in one line instead of a tensor-size
+    error inside the actor."""
+    from dockingrl.onboard import OnboardPolicy
+
+    path = tiny_policy(tmp_path / "odd.pt", obs_dim=12, observe_current=True)
+    line = fails(capsys, ["eval", "--policy", str(path), "--episodes", "2", "--quiet"], 1)
+    assert "12 numbers" in line and "14 numbers" in line and "ocean_current" in line
+    with pytest.raises(ValueError, match="14 numbers"):
+        OnboardPolicy.from_file(path)
+    line = fails(capsys, ["export", "--policy", str(path), "--out", str(tmp_path / "p.pt2")], 1)
+    assert "14 numbers" in line and not (tmp_path / "p.pt2").exists()
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_shows_the_traceback(where, tmp_path, capsys):
+    argv = ["eval", "--policy", str(tmp_path), "--quiet"]
+    argv = ["--debug", *argv] if where == "before" else [*argv, "--debug"]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1
+    assert err.startswith("Traceback") and "in load_policy" in err
+    assert err.splitlines()[-1].startswith(f"dockingrl: error: {tmp_path}")
+
+
+def _raise(exc):
+    def command(args):
+        raise exc
+
+    return command
+
+
+def test_an_unexpected_error_is_one_line_that_points_to_debug(monkeypatch, capsys):
+    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", _raise(ZeroDivisionError("oops")))
+    line = fails(capsys, ["filter-figure"], 1)
+    assert line == (
+        "dockingrl: error: ZeroDivisionError: oops (unexpected: run with --debug for the traceback)"
+    )
+
+
+def test_a_runtime_error_of_dockingrl_is_input_one_of_a_library_a_bug(monkeypatch, capsys):
+    from dockingrl.transforms.repeat import ActionRepeat
+
+    def dockingrl_check(args):
+        ActionRepeat(2).forward(None)  # "... use it inside a TransformedEnv"
+
+    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", dockingrl_check)
+    line = fails(capsys, ["filter-figure"], 1)
+    assert "TransformedEnv" in line and "--debug" not in line
+
+    def library_error(args):
+        torch.zeros(2) @ torch.zeros(3)
+
+    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", library_error)
+    line = fails(capsys, ["filter-figure"], 1)
+    assert line.startswith("dockingrl: error: RuntimeError: ") and "--debug" in line
+
+
+def test_ctrl_c_is_one_line_and_status_130(monkeypatch, capsys):
+    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", _raise(KeyboardInterrupt()))
+    assert fails(capsys, ["filter-figure"], 130) == "dockingrl: error: interrupted"
+
+
+def test_the_process_exits_non_zero_with_one_line_and_no_traceback(tmp_path):
+    """The interpreter ends a failed ``python -m dockingrl`` with the status alone: no
+    traceback, no second line (the in-process tests check the other statuses)."""
+    bad = tmp_path / "random.pt"
+    bad.write_bytes(bytes(range(256)) * 8)
+    run = subprocess.run(
+        [sys.executable, "-m", "dockingrl", "eval", "--policy", str(bad), "--quiet"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert run.returncode == 1, run.stderr
+    assert run.stderr.count("\n") == 1 and run.stderr.startswith(f"dockingrl: error: {bad}")
+    assert "Traceback" not in run.stderr and run.stdout == ""
