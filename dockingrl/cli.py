@@ -418,8 +418,10 @@ def main(argv: list[str] | None = None) -> int:
     _ARGV[:] = argv
     debug, command = "--debug" in argv, None
     try:
-        args = build_parser().parse_args(argv)
+        args, extra = build_parser().parse_known_args(argv)
         debug, command = args.debug, args.command
+        if extra:
+            raise UsageError(f"unrecognized arguments: {' '.join(extra)}")
         return args.func(args)
     except BaseException as exc:
         if isinstance(exc, SystemExit) and not isinstance(exc.code, str):

@@ -425,7 +425,7 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     if fixed & set(extra):
         raise UsageError(
             f"--set cannot change {', '.join(sorted(fixed & set(extra)))}: "
-            "the comparison sets it (see its own options)"
+            "the comparison sets it with its own options"
         )
     rows, results = [], {"command": command_line(), "seeds": list(args.seeds), "agents": {}}
     for name, params in (("hand-tuned (Tables 1-2)", ""), ("learned", args.filter_params)):

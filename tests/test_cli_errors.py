@@ -106,12 +106,15 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["eval", "--mirrored"], "--mirrored needs a saved agent"),
         ([], "the following arguments are required: command"),
         (["evaluate"], "argument command: invalid choice: 'evaluate'"),
+        (["eval", "--bogus", "3"], "unrecognized arguments: --bogus 3"),
     ],
 )
 def test_a_bad_command_line_is_one_usage_line(argv, says, capsys):
     line = fails(capsys, argv, 2)
     assert says in line
-    assert line.endswith("--help)")  # points to the command's help
+    known = argv[:1] != ["evaluate"]
+    prog = f"dockingrl {argv[0]}" if argv and known else "dockingrl"
+    assert line.endswith(f"(see {prog} --help)")  # the help of the command that refused it
 
 
 def test_unknown_recipe_is_one_line(capsys, tmp_path):
