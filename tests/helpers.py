@@ -11,8 +11,8 @@ from dockingrl.agents.config import make_config
 
 #: the repository's root, whatever folder pytest runs in
 REPO = Path(__file__).resolve().parent.parent
-#: the committed PPO compound policy (``results/ppo_compound_sis_lin/``)
-PPO_COMPOUND_POLICY = REPO / "results" / "ppo_compound_sis_lin" / "policy.pt"
+#: the committed PPO compound policy (``results/agents/ppo_compound/``)
+PPO_COMPOUND_POLICY = REPO / "results" / "agents" / "ppo_compound" / "policy.pt"
 
 
 def tiny_actor(obs_dim, algo="sac", seed=0):
