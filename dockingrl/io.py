@@ -215,11 +215,8 @@ def _unpickle(path: Path, data: bytes, what: str) -> dict:
                 f"strings, lists and dicts, which could run code when loaded ({what} expected)"
             ) from None
         raise ArtifactError(f"{path}: damaged {what}: {first_line(exc)}") from None
-    except Exception as exc:  # a damaged ZIP or pickle fails in many ways
-        raise ArtifactError(
-            f"{path}: damaged or truncated, not a readable {what} "
-            f"({type(exc).__name__}: {first_line(exc)})"
-        ) from None
+    except Exception:  # a damaged ZIP or pickle fails in many ways
+        raise ArtifactError(f"{path}: damaged or truncated, not a readable {what}") from None
     if not isinstance(payload, dict):
         raise ArtifactError(f"{path}: not a {what}: it holds a {type(payload).__name__}")
     return payload
