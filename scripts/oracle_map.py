@@ -5,7 +5,7 @@ which cells of Figure 9's map can be docked at all under eq. 3's command bounds 
     python scripts/oracle_map.py --oc-x-min 0.075 --abs-oc-y-min 0.225 --trials 10 \
         --samples 256 --horizon 30 --iterations 4 --out results/oracle/hard_cells.json \
         --figure results/oracle/hard_cells \
-        --compare results/sac_probes/sac_ar4_cmd_u05_mirror/map/success_map.json
+        --compare results/oracle/sac_without_bonus_map/success_map.json
 
 Cells are those of ``dockingrl eval --map`` (``--cells`` values per axis in
 ``[-limit, limit]``), optionally only the ones with ``oc_x >= --oc-x-min`` and
