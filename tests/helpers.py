@@ -42,3 +42,59 @@ def smoke_config(algo, scenario, tmp_path, run_name, **overrides):
     )
     fields.update(overrides)
     return make_config(algo, "paper", **fields)
+
+
+#: episode length (steps) of the smoke runs of ``conftest.tiny_runs``: their untrained policies
+#: time out, and 60 steps evaluate ten times faster than the paper's 600
+SMOKE_EPISODE_STEPS = 60
+
+#: budgets and sizes of a run of seconds per algorithm, and what every such run shares
+TINY = {
+    "sac": {
+        "total_steps": 400,
+        "num_envs": 4,
+        "start_steps": 100,
+        "frames_per_batch": 100,
+        "batch_size": 32,
+        "hidden": (32, 32),
+        "updates_per_step": 0.5,
+    },
+    "td3": {
+        "total_steps": 400,
+        "num_envs": 4,
+        "start_steps": 100,
+        "frames_per_batch": 100,
+        "batch_size": 32,
+        "hidden": (32, 32),
+        "updates_per_step": 0.5,
+    },
+    "ppo": {
+        "total_steps": 512,
+        "num_envs": 8,
+        "steps_per_env": 32,
+        "minibatch_size": 64,
+        "epochs": 2,
+        "hidden": (32, 32),
+    },
+}
+COMMON = {
+    "eval_every": 200,
+    "eval_episodes": 3,
+    "final_eval_episodes": 6,
+    "logger": "csv",
+    "checkpoint_every": 200,
+    "threads": 1,
+}
+
+
+def tiny_config(algo, scenario, tmp_path, **extra):
+    """The smoke run of ``algo`` on ``scenario`` that test_training.py varies: ``TINY`` and
+    ``COMMON``, a run named ``{algo}_{scenario}`` under ``tmp_path``; ``extra`` sets more."""
+    return make_config(
+        algo,
+        "paper",
+        scenario=scenario,
+        out=str(tmp_path),
+        run_name=f"{algo}_{scenario}",
+        **{**TINY[algo], **COMMON, **extra},
+    )

@@ -5,68 +5,20 @@ from pathlib import Path
 
 import pytest
 import torch
+from helpers import COMMON, SMOKE_EPISODE_STEPS, TINY, tiny_config
 
 from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, make_config
 from dockingrl.agents.saving import load_policy
 from dockingrl.cli import main as cli_main
+from dockingrl.env import DockingConfig
 from dockingrl.evaluation import evaluate
 from dockingrl.training import Trainer, read_curves, train
-
-TINY = {
-    "sac": {
-        "total_steps": 400,
-        "num_envs": 4,
-        "start_steps": 100,
-        "frames_per_batch": 100,
-        "batch_size": 32,
-        "hidden": (32, 32),
-        "updates_per_step": 0.5,
-    },
-    "td3": {
-        "total_steps": 400,
-        "num_envs": 4,
-        "start_steps": 100,
-        "frames_per_batch": 100,
-        "batch_size": 32,
-        "hidden": (32, 32),
-        "updates_per_step": 0.5,
-    },
-    "ppo": {
-        "total_steps": 512,
-        "num_envs": 8,
-        "steps_per_env": 32,
-        "minibatch_size": 64,
-        "epochs": 2,
-        "hidden": (32, 32),
-    },
-}
-COMMON = {
-    "eval_every": 200,
-    "eval_episodes": 3,
-    "final_eval_episodes": 6,
-    "logger": "csv",
-    "checkpoint_every": 200,
-    "threads": 1,
-}
-
-
-def tiny_config(algo, scenario, tmp_path, **extra):
-    return make_config(
-        algo,
-        "paper",
-        scenario=scenario,
-        out=str(tmp_path),
-        run_name=f"{algo}_{scenario}",
-        **{**TINY[algo], **COMMON, **extra},
-    )
 
 
 @pytest.mark.parametrize("scenario", ["no_noise", "noise", "filtered", "compound"])
 @pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
-def test_every_algorithm_trains_on_every_scenario(algo, scenario, tmp_path):
-    cfg = tiny_config(algo, scenario, tmp_path)
-    result = train(cfg, progress=False)
-    run = tmp_path / f"{algo}_{scenario}"
+def test_every_algorithm_trains_on_every_scenario(algo, scenario, tiny_runs):
+    cfg, result, run = tiny_runs(algo, scenario)
     s = result["summary"]
     assert s["frames"] >= TINY[algo]["total_steps"] and s["updates"] > 0
     assert result["eval"]["episodes"] == 6
@@ -84,9 +36,11 @@ def test_every_algorithm_trains_on_every_scenario(algo, scenario, tmp_path):
     assert "eval/success_rate" in curves and "time/steps_per_s" in curves
     policy, info = load_policy(run / "policy.pt")
     assert info["algo"] == algo and info["scenario"] == scenario
-    # the final evaluation is the saved policy's, on the final episodes' seed: the same
-    # outcomes to the last bit
-    again = evaluate(policy, scenario, 6, seed=cfg.seed + 10_000)
+    # the final evaluation is the saved policy's, on the final episodes' seed and in the
+    # run's world: the same outcomes to the last bit
+    assert result["eval"]["time_all_s"]["mean"] <= SMOKE_EPISODE_STEPS * 0.2
+    world = DockingConfig(max_steps=SMOKE_EPISODE_STEPS)
+    again = evaluate(policy, scenario, 6, seed=cfg.seed + 10_000, config=world)
     for key in ("success_rate", "total_reward", "time_all_s", "failures"):
         assert again[key] == result["eval"][key], key
 
@@ -211,10 +165,8 @@ def test_a_finished_run_continues_to_a_larger_total(tmp_path):
         )
 
 
-def test_checkpoint_round_trip_restores_networks_and_buffer(tmp_path):
-    cfg = tiny_config("sac", "noise", tmp_path)
-    train(cfg, progress=False)
-    run = tmp_path / "sac_noise"
+def test_checkpoint_round_trip_restores_networks_and_buffer(tiny_runs):
+    cfg, _, run = tiny_runs("sac", "noise")
     trainer = Trainer(cfg, run, progress=False)
     assert trainer.load_checkpoint()
     saved = torch.load(run / "policy.pt", weights_only=True)["state_dict"]
@@ -304,7 +256,6 @@ def test_out_of_range_hyperparameters_are_refused(algo, field, value):
 
 
 def test_curricula_reach_the_training_env_only():
-    from dockingrl.env import DockingConfig
     from dockingrl.training import TRAINING_DRAWS, env_kwargs, training_draws
 
     plain = make_config("sac")
@@ -704,7 +655,6 @@ def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys):
     ``--filter-params none`` and the noise flags put it back in the paper's."""
     from helpers import smoke_config
 
-    from dockingrl.env import DockingConfig
     from dockingrl.onboard import OnboardPolicy
     from dockingrl.scenarios import make_filter
 
