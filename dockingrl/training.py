@@ -34,7 +34,6 @@ from dockingrl.transforms import (
 )
 from dockingrl.transforms.params import read_filter_params
 
-CHECKPOINT_FORMAT = "dockingrl.checkpoint/1"
 #: seed of the validation episodes that pick among ``keep_candidates`` actors (plus the run's
 #: seed); periodic evaluations use ``1_000_000 + frames``, the final one ``seed + 10_000``
 SELECT_SEED = 1 << 40
@@ -88,13 +87,34 @@ class _StopRequests:
 
 
 class RunLogger:
-    """Namespaced scalars (``train/``, ``eval/``, ``losses/``, ``time/``) to wandb (offline by
-    default) or TorchRL's CSV logger, plus a local ``curves.csv`` kept whatever the choice."""
+    """Namespaced scalars (``train/``, ``eval/``, ``losses/``, ``time/``) to a local
+    ``curves.csv``, appended as they come, and to wandb (offline by default) or TorchRL's CSV
+    logger.
+
+    ``curves.csv`` is the record: a resumed run cuts it back to its checkpoint
+    (:meth:`Trainer._drop_curves_after`). The backend receives the rows of ``curves.csv`` once
+    each, in order: with ``buffered`` (a run that checkpoints), only when :meth:`flush` is
+    called after a checkpoint and at the end, so that it never holds a step that a resumed run
+    trains again; otherwise after every :meth:`log`. ``logged.json`` counts the rows the backend
+    has; :meth:`sync` (on resume) rewrites the CSV backend's files from ``curves.csv`` and sends
+    the rows it lacks."""
 
     def __init__(
-        self, config: dict, kind: str, run_dir: Path, run_id: str, online: bool = False
+        self,
+        config: dict,
+        kind: str,
+        run_dir: Path,
+        run_id: str,
+        online: bool = False,
+        *,
+        buffered: bool = False,
     ) -> None:
+        self.run_dir = run_dir
         self.curves = run_dir / "curves.csv"
+        self.marker = run_dir / "logged.json"
+        self.kind, self.buffered = kind, buffered
+        self._pending: list[tuple[int, str, float]] = []
+        self._sent = 0
         self.backend = None
         if kind == "wandb":
             from torchrl.record.loggers import WandbLogger
@@ -118,18 +138,70 @@ class RunLogger:
             raise ValueError(f"unknown logger {kind!r}; valid: wandb, csv, none")
 
     def log(self, metrics: dict[str, float], step: int) -> None:
-        if self.backend is not None:
-            for key, value in metrics.items():
-                self.backend.log_scalar(key, float(value), step=step)
+        rows = [(step, key, float(value)) for key, value in metrics.items()]
         new = not self.curves.exists()
         with self.curves.open("a", newline="") as f:
             writer = csv.writer(f)
             if new:
                 writer.writerow(["step", "key", "value"])
-            for key, value in metrics.items():
-                writer.writerow([step, key, float(value)])
+            writer.writerows(rows)
+        if self.backend is not None:
+            self._pending.extend(rows)
+            if not self.buffered:
+                self.flush()
+
+    def flush(self) -> None:
+        """Send the backend the rows logged since the last flush, step by step; with
+        ``buffered``, ``logged.json`` counts the rows sent after each step."""
+        rows, self._pending = self._pending, []
+        start = 0
+        while start < len(rows):
+            end = start
+            while end < len(rows) and rows[end][0] == rows[start][0]:
+                end += 1
+            for step, key, value in rows[start:end]:
+                self.backend.log_scalar(key, value, step=int(step))
+            self._sent += end - start
+            if self.buffered:
+                write_json(self.marker, {"rows": self._sent})
+            start = end
+
+    def sync(self) -> None:
+        """Make the backend hold the rows of ``curves.csv`` (cut back to the checkpoint on
+        resume) once each: the CSV backend's files are written anew from it; another backend
+        (wandb) is sent the rows that ``logged.json`` says it lacks."""
+        if self.backend is None:
+            return
+        rows: list = []
+        if self.curves.exists():
+            with self.curves.open(newline="") as f:
+                rows = [(int(s), k, float(v)) for s, k, v in list(csv.reader(f))[1:]]
+        if self.kind == "csv":
+            experiment = self.backend.experiment
+            for handle in experiment.files.values():
+                handle.close()
+            experiment.files.clear()
+            scalars = Path(experiment.log_dir) / "scalars"
+            by_key: dict[str, str] = {}
+            for step, key, value in rows:
+                by_key[key] = by_key.get(key, "") + f"{step},{value}\n"
+            for path in scalars.rglob("*.csv"):
+                if path.relative_to(scalars).with_suffix("").as_posix() not in by_key:
+                    path.unlink()
+            for key, text in by_key.items():
+                atomic_write(scalars / f"{key}.csv", lambda tmp, text=text: tmp.write_text(text))
+            self._sent = len(rows)
+            write_json(self.marker, {"rows": self._sent})
+        else:
+            try:
+                self._sent = min(int(json.loads(self.marker.read_text())["rows"]), len(rows))
+            except (OSError, ValueError, KeyError, TypeError):
+                self._sent = 0
+        self._pending = rows[self._sent :]
+        self.flush()
 
     def finish(self, summary: dict) -> None:
+        self.flush()
         if self.backend is not None and hasattr(self.backend, "experiment"):
             experiment = self.backend.experiment
             if hasattr(experiment, "summary"):
@@ -281,7 +353,9 @@ class Trainer:
             return False
         state = read_state(path)
         if state["replay"] is not None and self.agent.replay_buffer is None:
-            raise ArtifactError(f"{path / 'state.pt'}: holds a replay buffer this run's agent lacks")
+            raise ArtifactError(
+                f"{path / 'state.pt'}: holds a replay buffer this run's agent lacks"
+            )
         try:
             self.agent.load_state_dict(state["agent"])
             if state["replay"] is not None:
@@ -498,6 +572,7 @@ class Trainer:
                 stopping = stops.signum is not None and self.frames < cfg.total_steps
                 if due or stopping:
                     self.save_checkpoint()
+                    logger.flush()
                 if stopping:
                     raise TrainingInterrupted(stops.signum, self.frames, self.run_dir)
                 if self.out_of_time:
@@ -703,8 +778,9 @@ class RunLock:
 
 
 def code_version() -> dict:
-    """The git commit of the dockingrl source that runs, and whether its tracked files differ
-    from it (``dirty``); ``commit`` is None outside a git checkout."""
+    """The git commit of the dockingrl source that runs, and whether the package's tracked
+    files differ from it (``dirty``; results and docs do not count); ``commit`` is None outside
+    a git checkout."""
     import subprocess
 
     root = Path(__file__).resolve().parent.parent
@@ -717,7 +793,7 @@ def code_version() -> dict:
 
         return {
             "commit": git("rev-parse", "HEAD"),
-            "dirty": bool(git("status", "--porcelain", "-uno")),
+            "dirty": bool(git("status", "--porcelain", "-uno", "--", "dockingrl")),
         }
     except (OSError, subprocess.CalledProcessError):
         return {"commit": None, "dirty": None}
@@ -737,7 +813,15 @@ def _train_locked(cfg, run_dir, resume, progress, command, overrides) -> dict:
         if set(overrides) & set(_RECORDED_OVERRIDES):
             write_json(run_dir / "config.json", cfg.to_dict())
         trainer._drop_curves_after(trainer.frames)
-    logger = RunLogger(cfg.to_dict(), cfg.logger, run_dir, trainer.run_id, cfg.wandb_online)
+    logger = RunLogger(
+        cfg.to_dict(),
+        cfg.logger,
+        run_dir,
+        trainer.run_id,
+        cfg.wandb_online,
+        buffered=cfg.checkpoint_every > 0,
+    )
+    logger.sync()
     if trainer.frames < cfg.total_steps and not trainer.out_of_time:
         try:
             trainer.run(logger)
