@@ -398,8 +398,6 @@ def error_line(exc: BaseException, command: str | None) -> tuple[str, int]:
         return f"{text} (see {exc.prog or f'dockingrl {command}'} --help)", 2
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted", 130
-    if isinstance(exc, SystemExit):  # SystemExit("error: ...") as dockingrl.agents.config raises
-        return text.removeprefix("error: "), 1
     if isinstance(exc, (ValueError, OSError)) or (
         isinstance(exc, RuntimeError) and _raised_by_dockingrl(exc)
     ):

@@ -58,10 +58,6 @@ def _from_command_line(make: Callable[[], TrainConfig]) -> TrainConfig:
         return make()
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
-    except SystemExit as exc:  # overrides_from_args and config_from_args refuse this way
-        if not isinstance(exc.code, str):
-            raise
-        raise UsageError(exc.code.removeprefix("error: ")) from exc
 
 
 def config_from_recipe(args: argparse.Namespace) -> TrainConfig:

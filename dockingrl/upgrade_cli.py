@@ -55,14 +55,14 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
         try:
             files = upgrade_targets(path)
         except ArtifactError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"dockingrl: error: {exc}", file=sys.stderr)
             failed += 1
             continue
         for file in files:
             try:
                 print(upgrade_file(file))
             except ArtifactError as exc:
-                print(f"error: {exc}", file=sys.stderr)
+                print(f"dockingrl: error: {exc}", file=sys.stderr)
                 failed += 1
     return 1 if failed else 0
 

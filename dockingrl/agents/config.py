@@ -590,22 +590,18 @@ CONFIG_FIELDS = frozenset(f.name for cls in CONFIGS.values() for f in fields(cls
 
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The config fields given on the command line (``--FIELD VALUE``) for ``args.algo``;
-    ``SystemExit`` for a field that does not apply to that algorithm."""
+    ``ValueError`` for a field that does not apply to that algorithm."""
     known = {f.name for f in fields(CONFIGS[args.algo])} - _NOT_OPTIONS
     overrides = {}
     for name, value in vars(args).items():
         if value is None or name not in CONFIG_FIELDS:
             continue
         if name not in known:
-            raise SystemExit(f"error: --{name.replace('_', '-')} does not apply to {args.algo}")
+            raise ValueError(f"--{name.replace('_', '-')} does not apply to {args.algo}")
         overrides[name] = tuple(value) if isinstance(value, list) else value
     return overrides
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The config of ``args.algo`` from ``args.preset`` and the fields on the command line."""
-    overrides = overrides_from_args(args)
-    try:
-        return make_config(args.algo, args.preset or "paper", **overrides)
-    except ValueError as exc:
-        raise SystemExit(f"error: {exc}") from exc
+    return make_config(args.algo, args.preset or "paper", **overrides_from_args(args))
