@@ -8,7 +8,11 @@ from dockingrl.env import DockingConfig, DockingEnv, contact_score
 __version__ = "0.1.0"
 
 if "dockingrl/Docking-v0" not in gymnasium.registry:
-    gymnasium.register(id="dockingrl/Docking-v0", entry_point="dockingrl.env.gym_env:DockingGymEnv")
+    gymnasium.register(
+        id="dockingrl/Docking-v0",
+        entry_point="dockingrl.gym.single:DockingScenarioEnv",
+        vector_entry_point="dockingrl.gym.vector:DockingVectorEnv",
+    )
 
 __all__ = ["DockingConfig", "DockingEnv", "contact_score", "__version__"]
 

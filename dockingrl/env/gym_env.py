@@ -1,15 +1,20 @@
-"""A single-env Gymnasium view of :class:`DockingEnv` (numpy in, numpy out).
+"""A single-env Gymnasium view of :class:`DockingEnv` (numpy in, numpy out), stepped without the
+TorchRL machinery: each step calls the batched env's own transition function (the pure
+functions of :mod:`dockingrl.env.dynamics` and :mod:`dockingrl.env.reward`) on tensors of one
+env, with no ``TensorDict`` and no spec checks, so that it gives the same numbers as
+``DockingEnv(1)`` at a fraction of the cost.
 
-Registered as ``dockingrl/Docking-v0`` on ``import dockingrl``, so that any Gymnasium-based
-library can use the task::
+The registered ``dockingrl/Docking-v0`` (:mod:`dockingrl.gym`) builds on it with the paper's
+four scenarios::
 
     import gymnasium, dockingrl
-    env = gymnasium.make("dockingrl/Docking-v0")
+    env = gymnasium.make("dockingrl/Docking-v0", scenario="compound")
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium
@@ -20,47 +25,170 @@ from gymnasium import spaces
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.docking import ACTION_DIM, OBSERVATION_DIM, DockingEnv
 
-_INFO_KEYS = ("success", "contact_score", "contact_speed", "step_count")
+#: the entries of ``info`` read from the env's outputs as Python numbers
+_INFO_NUMBERS = (("success", bool), ("contact_score", float), ("contact_speed", float))
+#: the attributes of :class:`DockingEnv` that hold its state, in the order of
+#: :meth:`DockingGymEnv._tensor_step`
+_SIMULATOR_STATE = ("_pose", "_velocity", "_current", "_integral", "_previous_error", "_step_count")
+#: what ``reset(options=...)`` accepts: a start pose and a current for that episode
+RESET_OPTIONS = ("pose", "ocean_current")
+
+
+def reading_bounds() -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` float32 of one 6-number reading of eq. 2 (raw, true or filtered):
+    range >= 0, bearing and heading in [-pi, pi], velocities unbounded."""
+    inf, pi = np.inf, np.float32(math.pi)
+    return (
+        np.array([0.0, -pi, -pi, -inf, -inf, -inf], dtype=np.float32),
+        np.array([inf, pi, pi, inf, inf, inf], dtype=np.float32),
+    )
+
+
+def action_space(config: DockingConfig) -> spaces.Box:
+    """The float32 box of eq. 3 for ``config``'s command bounds."""
+    return spaces.Box(
+        low=np.array(config.action_low, dtype=np.float32),
+        high=np.array(config.action_high, dtype=np.float32),
+        dtype=np.float32,
+    )
+
+
+def validated_action(action, config: DockingConfig) -> np.ndarray:
+    """``action`` as the float32 ``(2,)`` command the env applies: real numbers of shape ``(2,)``
+    exactly (an array, list or tuple), finite, clipped to the bounds in float64 so that a finite
+    value beyond float32's range is clipped like any other. Anything else is a one-line
+    ``ValueError``."""
+    expected = f"a finite real action of shape ({ACTION_DIM},) [v_d, w_d]"
+    if action is None:
+        raise ValueError(f"action must be {expected}, got None")
+    try:
+        array = np.asarray(action)
+    except ValueError:
+        raise ValueError(f"action must be {expected}, got a ragged {action!r}") from None
+    if array.dtype.kind not in "iuf":
+        raise ValueError(
+            f"action must be {expected}, got dtype {array.dtype} of shape {array.shape}"
+        )
+    if array.shape != (ACTION_DIM,):
+        raise ValueError(f"action must be {expected}, got shape {array.shape}")
+    array = array.astype(np.float64)
+    if not np.isfinite(array).all():
+        raise ValueError(f"action must be {expected}, got {array.tolist()}")
+    return np.clip(array, config.action_low, config.action_high).astype(np.float32)
 
 
 class DockingGymEnv(gymnasium.Env):
-    """The docking task as a ``gymnasium.Env``; see :class:`DockingEnv` for the full description.
+    """The bare docking task as a ``gymnasium.Env``; see :class:`DockingEnv` for the full
+    description.
 
-    Observations are float32 ``(6,)`` (eq. 2), actions ``(2,)`` (eq. 3, clipped to the bounds;
-    any real dtype; a wrong shape, a bool, complex or text dtype, NaN or inf raise
-    ``ValueError``). ``info`` holds ``ocean_current``, ``true_state`` and, on the last step,
-    ``success``, ``contact_score`` and ``contact_speed``.
+    Observations are float32 ``(6,)`` (eq. 2; noisy unless ``config.noise`` is False), actions
+    ``(2,)`` (eq. 3, clipped to the bounds; any real dtype; a wrong shape, a bool, complex or
+    text dtype, NaN or inf raise ``ValueError``). ``info`` holds ``ocean_current``,
+    ``true_state``, ``step_count`` and ``success``, ``contact_score`` and ``contact_speed``
+    (meaningful on the last step). ``reset(options={"pose": (x, y, alpha), "ocean_current":
+    (oc_x, oc_y)})`` starts that episode there (either key alone too).
+
+    Args:
+        config: the env's constants (:class:`DockingConfig`).
+
+    Keyword Args:
+        simulator: a ``DockingEnv`` of one env to step instead of a new one built from
+            ``config`` (the base env of a :func:`dockingrl.make_env` pipeline).
+        compile: ``torch.compile`` the step (:meth:`_tensor_step`): the first step compiles
+            (about 20 s on a 2-core CPU), then a step costs several times less.
     """
 
     metadata = {"render_modes": []}
 
-    def __init__(self, config: DockingConfig | None = None) -> None:
-        self._env = DockingEnv(1, config=config, seed=0)
-        cfg = self._env.config
-        self.action_space = spaces.Box(
-            low=np.array(cfg.action_low, dtype=np.float32),
-            high=np.array(cfg.action_high, dtype=np.float32),
-            dtype=np.float32,
-        )
-        inf, pi = np.inf, np.float32(math.pi)
-        self.observation_space = spaces.Box(
-            low=np.array([0.0, -pi, -pi, -inf, -inf, -inf], dtype=np.float32),
-            high=np.array([inf, pi, pi, inf, inf, inf], dtype=np.float32),
-            shape=(OBSERVATION_DIM,),
-            dtype=np.float32,
-        )
-        self._td = None
+    def __init__(
+        self,
+        config: DockingConfig | None = None,
+        *,
+        simulator: DockingEnv | None = None,
+        compile: bool = False,
+    ) -> None:
+        if simulator is None:
+            simulator = DockingEnv(1, config=config, seed=0)
+        elif not isinstance(simulator, DockingEnv) or simulator.num_envs != 1:
+            raise ValueError(f"simulator must be a DockingEnv of 1 env, got {simulator!r}")
+        self._env = simulator
+        self.config = simulator.config
+        self.action_space = action_space(self.config)
+        low, high = reading_bounds()
+        self.observation_space = spaces.Box(low, high, shape=(OBSERVATION_DIM,), dtype=np.float32)
+        #: the last reset's or step's entries, keyed as the batched env's tensordict
+        self._td: Mapping[str, torch.Tensor] | None = None
+        #: a scenario's own state (the filter's), carried from step to step
+        self._extra: tuple = ()
+        self._step_function = self._tensor_step
+        if compile:
+            self._step_function = torch.compile(self._tensor_step, dynamic=False)
 
-    @staticmethod
-    def _info(td) -> dict[str, Any]:
-        info = {
-            "ocean_current": td["ocean_current"][0].numpy().copy(),
-            "true_state": td["true_state"][0].numpy().copy(),
+    # -- the step as a pure tensor function, and the hooks of the scenarios ---------------
+    def _observe_reset(self, out: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The policy's ``(1, k)`` observation after a reset (a scenario also starts its own
+        state, :attr:`_extra`, here)."""
+        return out["observation"]
+
+    def _tensor_step(
+        self, state: tuple, extra: tuple, action: torch.Tensor, noise: torch.Tensor | None
+    ) -> tuple[tuple, tuple, torch.Tensor, dict[str, torch.Tensor]]:
+        """One step as a pure tensor function (what ``compile=True`` compiles): the
+        simulator's ``state`` ``(pose, velocity, current, integral, previous_error,
+        step_count)`` and a scenario's own state ``extra`` under the applied ``(1, 2)``
+        ``action`` and the step's standard-normal sensor ``noise`` -> ``(state, extra,
+        observation, out)``, ``out`` the batched env's step outputs. Here: the batched env's
+        own transition."""
+        pose, velocity, current, integral, error, step_count = state
+        pose, velocity, integral, error, step_count, out = self._env._transition(
+            pose, velocity, current, integral, error, step_count, action, noise
+        )
+        state = (pose, velocity, current, integral, error, step_count)
+        return state, extra, out["observation"], out
+
+    # -- Gymnasium API ----------------------------------------------------------------------
+    def _info(self, out: Mapping[str, torch.Tensor]) -> dict[str, Any]:
+        info: dict[str, Any] = {
+            "ocean_current": out["ocean_current"][0].numpy().copy(),
+            "true_state": out["true_state"][0].numpy().copy(),
+            "step_count": int(out["step_count"]),
         }
-        for key in _INFO_KEYS:
-            if key in td.keys():
-                info[key] = td[key][0].item()
+        for key, kind in _INFO_NUMBERS:
+            info[key] = kind(out[key])
         return info
+
+    def _pin(self, options: Mapping | None) -> None:
+        """Pin this episode's start to ``options``' ``pose`` and ``ocean_current`` (checked:
+        3 and 2 finite numbers, the current within ``ocean_current_range``)."""
+        if not options:
+            self._env.set_initial_state(None, None)
+            return
+        if not isinstance(options, Mapping) or set(options) - set(RESET_OPTIONS):
+            raise ValueError(
+                f"reset options must be a mapping with keys among {', '.join(RESET_OPTIONS)}, "
+                f"got {options!r}"
+            )
+        pinned = {}
+        low, high = self.config.ocean_current_range
+        for key, size, what in (("pose", 3, "(x, y, alpha)"), ("ocean_current", 2, "(oc_x, oc_y)")):
+            value = options.get(key)
+            if value is None:
+                continue
+            try:
+                array = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                array = np.full(0, np.nan)
+            if array.shape != (size,) or not np.isfinite(array).all():
+                raise ValueError(
+                    f"reset options[{key!r}] must be {what}, {size} finite numbers, got {value!r}"
+                )
+            if key == "ocean_current" and not ((low <= array) & (array <= high)).all():
+                raise ValueError(
+                    f"reset options['ocean_current'] must lie in ocean_current_range "
+                    f"[{low:g}, {high:g}] m/s, got {value!r}"
+                )
+            pinned[key] = torch.from_numpy(array)
+        self._env.set_initial_state(pinned.get("pose"), pinned.get("ocean_current"))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -68,42 +196,36 @@ class DockingGymEnv(gymnasium.Env):
             self._env.set_seed(seed)
         elif self._td is None:
             self._env.set_seed(int(self.np_random.integers(0, 2**62)))
-        self._td = self._env.reset()
-        return self._td["observation"][0].numpy().astype(np.float32), self._info(self._td)
+        self._pin(options)
+        with torch.inference_mode():
+            out = self._env._reset()
+            self._env.set_initial_state(None, None)
+            observation = self._observe_reset(out)
+        self._td = out
+        return observation[0].numpy().copy(), self._info(out)
 
     def _action(self, action) -> np.ndarray:
-        """``action`` as the float32 ``(2,)`` command the env applies: real numbers of shape
-        ``(2,)`` exactly (an array, list or tuple), finite, clipped to the bounds in float64 so
-        that a finite value beyond float32's range is clipped like any other."""
-        expected = f"a finite real action of shape ({ACTION_DIM},) [v_d, w_d]"
-        if action is None:
-            raise ValueError(f"action must be {expected}, got None")
-        try:
-            array = np.asarray(action)
-        except ValueError:
-            raise ValueError(f"action must be {expected}, got a ragged {action!r}") from None
-        if array.dtype.kind not in "iuf":
-            raise ValueError(
-                f"action must be {expected}, got dtype {array.dtype} of shape {array.shape}"
-            )
-        if array.shape != (ACTION_DIM,):
-            raise ValueError(f"action must be {expected}, got shape {array.shape}")
-        array = array.astype(np.float64)
-        if not np.isfinite(array).all():
-            raise ValueError(f"action must be {expected}, got {array.tolist()}")
-        low, high = self._env.config.action_low, self._env.config.action_high
-        return np.clip(array, low, high).astype(np.float32)
+        return validated_action(action, self.config)
 
     def step(self, action):
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        self._td["action"] = torch.from_numpy(self._action(action)).reshape(1, ACTION_DIM)
-        out = self._env.step(self._td)["next"]
-        self._td = out.clone()
+        applied = torch.from_numpy(self._action(action)).reshape(1, ACTION_DIM)
+        sim = self._env
+        with torch.inference_mode():
+            noise = sim._sample_noise() if sim.config.noise else None
+            state = tuple(getattr(sim, name) for name in _SIMULATOR_STATE)
+            state, self._extra, observation, out = self._step_function(
+                state, self._extra, applied, noise
+            )
+        for name, value in zip(_SIMULATOR_STATE, state, strict=True):
+            setattr(sim, name, value)
+        out["ocean_current"], out["step_count"] = state[2], state[5]
+        self._td = out
         return (
-            out["observation"][0].numpy().astype(np.float32),
-            float(out["reward"][0, 0]),
-            bool(out["terminated"][0, 0]),
-            bool(out["truncated"][0, 0]),
+            observation[0].numpy().copy(),
+            float(out["reward"]),
+            bool(out["terminated"]),
+            bool(out["truncated"]),
             self._info(out),
         )

@@ -1,0 +1,222 @@
+"""The paper's four scenarios as a single ``gymnasium.Env``, registered as
+``dockingrl/Docking-v0``.
+
+Each step calls the same functions as the TorchRL pipeline of :func:`dockingrl.make_env`: the
+batched env's transition (:mod:`dockingrl.env.dynamics`, :mod:`dockingrl.env.reward`) and the
+EKF transform's filter step (:mod:`dockingrl.transforms.ekf`), on tensors of one env, with no
+``TensorDict``; the pipeline itself is built once by :func:`dockingrl.make_env`, so that the
+options mean exactly what they mean there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from torchrl.envs import TransformedEnv
+
+from dockingrl.env import DockingConfig
+from dockingrl.env.gym_env import DockingGymEnv, reading_bounds
+from dockingrl.scenarios import make_env, observation_layout
+from dockingrl.transforms import EKFTransform
+from dockingrl.transforms.ekf import measurement_function
+
+
+def scenario_pipeline(
+    scenario: str = "noise",
+    num_envs: int = 1,
+    *,
+    seed: int = 0,
+    device: torch.device | str = "cpu",
+    config: DockingConfig | None = None,
+    range_noise_scale: float = 1.0,
+    bearing_noise_scale: float = 1.0,
+    filter_params: str | Path | Mapping | None = None,
+    ekf_kwargs: dict | None = None,
+    observe_current: bool = False,
+    observe_command: bool = False,
+    following_current_fraction: float | None = None,
+    lateral_current_fraction: float | None = None,
+    near_start_fraction: float | None = None,
+    compile: bool = False,
+) -> TransformedEnv:
+    """The :func:`dockingrl.make_env` pipeline of the Gymnasium envs' options.
+
+    ``config`` (default: the paper's) gets its USBL noise scaled by ``range_noise_scale`` and
+    ``bearing_noise_scale`` (:meth:`DockingConfig.scale_usbl_noise`, as ``dockingrl train``'s
+    options of the same names) and the training draws given (``following_current_fraction``,
+    ``lateral_current_fraction``, ``near_start_fraction``; ``None`` keeps ``config``'s).
+    ``filter_params``, ``ekf_kwargs``, ``observe_current``, ``observe_command`` and
+    ``compile`` are :func:`dockingrl.make_env`'s."""
+    config = (config or DockingConfig()).scale_usbl_noise(range_noise_scale, bearing_noise_scale)
+    draws = {
+        "following_current_fraction": following_current_fraction,
+        "lateral_current_fraction": lateral_current_fraction,
+        "near_start_fraction": near_start_fraction,
+    }
+    config = config.replace(**{k: v for k, v in draws.items() if v is not None})
+    return make_env(
+        scenario,
+        num_envs,
+        seed=seed,
+        device=device,
+        config=config,
+        filter_params=filter_params,
+        ekf_kwargs=ekf_kwargs,
+        compile=compile,
+        observe_current=observe_current,
+        observe_command=observe_command,
+    )
+
+
+def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.Box:
+    """The float32 box of the policy's observation with entries ``layout``
+    (:func:`dockingrl.scenarios.observation_layout`): readings as
+    :func:`~dockingrl.env.gym_env.reading_bounds`, the current within ``ocean_current_range``
+    (one float32 step wider, as it is drawn in float32) and the previous command within the
+    action bounds."""
+    lows, highs = [], []
+    for key in layout:
+        if key in ("observation", "filtered_observation"):
+            low, high = reading_bounds()
+        elif key == "ocean_current":
+            low_c, high_c = (
+                np.float32(config.ocean_current_range[0]),
+                np.float32(config.ocean_current_range[1]),
+            )
+            low = np.full(2, np.nextafter(low_c, np.float32(-np.inf)), dtype=np.float32)
+            high = np.full(2, np.nextafter(high_c, np.float32(np.inf)), dtype=np.float32)
+        elif key == "previous_action":
+            low = np.array(config.action_low, dtype=np.float32)
+            high = np.array(config.action_high, dtype=np.float32)
+        else:
+            raise ValueError(f"unknown observation entry {key!r}")
+        lows.append(low)
+        highs.append(high)
+    return spaces.Box(np.concatenate(lows), np.concatenate(highs), dtype=np.float32)
+
+
+class DockingScenarioEnv(DockingGymEnv):
+    """One of the paper's four scenarios (Sec. 4) as a ``gymnasium.Env``: what
+    ``gymnasium.make("dockingrl/Docking-v0", scenario=..., ...)`` builds.
+
+    The observation is the policy's ``observation`` of ``dockingrl.make_env(scenario, 1,
+    ...)``, float32: 6 numbers in ``no_noise``, ``noise`` and ``filtered``, 12 in
+    ``compound`` (raw first), plus the current and the previous command when observed. For
+    the same seed and actions every step gives the same numbers as that TorchRL pipeline.
+    ``info`` is the bare env's (:class:`~dockingrl.env.gym_env.DockingGymEnv`).
+
+    Args:
+        scenario: ``no_noise``, ``noise``, ``filtered`` or ``compound``.
+
+    Keyword Args:
+        render_mode: ``None``, ``"rgb_array"`` (``render()`` returns an ``(H, W, 3)`` uint8
+            frame: the station's funnel, the vehicle, its track and the current's arrow) or
+            ``"human"`` (the same frame in a matplotlib window).
+        compile: ``torch.compile`` the whole step, simulation and filter (the first step
+            compiles, about 20 s on a 2-core CPU; then a step costs several times less).
+        options: :func:`scenario_pipeline`'s (``config``, ``range_noise_scale``,
+            ``bearing_noise_scale``, ``filter_params``, ``ekf_kwargs``, ``observe_current``,
+            ``observe_command``, ``following_current_fraction``,
+            ``lateral_current_fraction``, ``near_start_fraction``).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+
+    def __init__(
+        self,
+        scenario: str = "noise",
+        *,
+        render_mode: str | None = None,
+        compile: bool = False,
+        **options,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None, 'human' or 'rgb_array', got {render_mode!r}"
+            )
+        pipeline = scenario_pipeline(scenario, 1, **options)
+        super().__init__(simulator=pipeline.base_env, compile=compile)
+        self.scenario = scenario
+        self.render_mode = render_mode
+        self.layout = observation_layout(
+            scenario,
+            observe_current=bool(options.get("observe_current")),
+            observe_command=bool(options.get("observe_command")),
+        )
+        self.observation_space = observation_space(self.layout, self.config)
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.config.dt)}
+        self._ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
+        self._track: list[list[float]] = []
+        self._renderer = None
+
+    def _observation(self, parts: dict[str, torch.Tensor]) -> torch.Tensor:
+        if len(self.layout) == 1:
+            return parts[self.layout[0]]
+        return torch.cat([parts[key] for key in self.layout], dim=-1)
+
+    def _observe_reset(self, out) -> torch.Tensor:
+        parts = {"observation": out["observation"], "ocean_current": out["ocean_current"]}
+        if "previous_action" in self.layout:
+            parts["previous_action"] = torch.zeros(1, 2)
+        if self._ekf is not None:
+            z, current = out["observation"], out["ocean_current"]
+            mean, cov = self._ekf.initial_estimate(z, current)
+            self._extra = (mean, cov, torch.zeros(1, dtype=z.dtype))
+            parts["filtered_observation"] = measurement_function(mean, current)
+        self._record(out)
+        return self._observation(parts)
+
+    def _tensor_step(self, state, extra, action, noise):
+        state, _, observation, out = super()._tensor_step(state, (), action, noise)
+        parts = {"observation": observation, "ocean_current": state[2], "previous_action": action}
+        if self._ekf is not None:
+            mean, cov, age = extra
+            mean, cov, filtered = self._ekf.filter_step(
+                mean, cov, action, observation, state[2], age
+            )
+            extra = (mean, cov, age + 1)
+            parts["filtered_observation"] = filtered
+        return state, extra, self._observation(parts), out
+
+    def step(self, action):
+        result = super().step(action)
+        self._record(self._td)
+        return result
+
+    # -- rendering ------------------------------------------------------------------------
+    def _record(self, out) -> None:
+        if self.render_mode is None:
+            return
+        pose = out["true_state"][0, :3].tolist()
+        if int(out["step_count"]) == 0:
+            self._track = [pose]
+        else:
+            self._track.append(pose)
+
+    def render(self):
+        if self.render_mode is None:
+            return None
+        if self._td is None:
+            raise RuntimeError("call reset() before render()")
+        if self._renderer is None:
+            from dockingrl.render import DockingRenderer
+
+            self._renderer = DockingRenderer(self.config)
+        frame = self._renderer.draw(
+            np.asarray(self._track),
+            self._td["ocean_current"][0].tolist(),
+            title=f"{self.scenario}, t = {(len(self._track) - 1) * self.config.dt:.1f} s",
+        )
+        if self.render_mode == "rgb_array":
+            return frame
+        self._renderer.show(frame)
+        return None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
