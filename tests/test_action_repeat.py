@@ -113,7 +113,9 @@ def test_onboard_policy_holds_its_command_as_the_training_env_did(scenario):
         OnboardPolicy(actor, scenario, action_repeat=0)
 
 
-def test_training_with_action_repeat_counts_env_steps_and_saves_it_with_the_policy(tmp_path):
+def test_training_with_action_repeat_counts_env_steps_and_saves_it_with_the_policy(
+    tmp_path, short_episodes
+):
     repeat = 4
     cfg = smoke_config(
         "sac",
@@ -138,7 +140,9 @@ def test_training_with_action_repeat_counts_env_steps_and_saves_it_with_the_poli
     assert s["updates"] == int(0.5 * (768 - 192))
     policy, info = load_policy(tmp_path / "ar" / "policy.pt")
     assert info["config"]["action_repeat"] == repeat
-    again = evaluate(policy, "compound", 6, seed=10_000, action_repeat=repeat)
+    again = evaluate(
+        policy, "compound", 6, seed=10_000, action_repeat=repeat, config=short_episodes
+    )
     assert again["success_rate"] == result["eval"]["success_rate"]
     assert again["total_reward"] == result["eval"]["total_reward"]
     onboard = OnboardPolicy.from_file(tmp_path / "ar" / "policy.pt")

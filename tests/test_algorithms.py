@@ -170,7 +170,7 @@ def test_n_steps_must_fit_one_collection():
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3"])
-def test_off_policy_agents_train_with_n_step_targets(algo, tmp_path):
+def test_off_policy_agents_train_with_n_step_targets(algo, tmp_path, short_episodes):
     cfg = smoke_config(
         algo,
         "no_noise",

@@ -139,7 +139,7 @@ def test_mirror_augment_stores_each_transition_twice(tmp_path):
     assert torch.equal(stored["next", "reward"][40:], stored["next", "reward"][:40])
 
 
-def test_training_with_mirror_augment(tmp_path):
+def test_training_with_mirror_augment(tmp_path, short_episodes):
     cfg = smoke_config(
         "td3",
         "noise",
@@ -226,7 +226,7 @@ def test_mirror_symmetric_networks_are_exactly_equivariant(algo):
         make_config("sac", "paper", mirror_symmetric="both")
 
 
-def test_a_trained_mirror_symmetric_policy_loads_equivariant(tmp_path):
+def test_a_trained_mirror_symmetric_policy_loads_equivariant(tmp_path, short_episodes):
     from dockingrl.agents.saving import load_policy
 
     cfg = smoke_config(

@@ -115,7 +115,7 @@ def test_exported_onboard_program_reads_its_previous_command_too(tmp_path, scena
         td = step_mdp(env.step(td.set("action", command)))
 
 
-def test_training_saves_observe_command_with_the_policy(tmp_path):
+def test_training_saves_observe_command_with_the_policy(tmp_path, short_episodes):
     cfg = smoke_config(
         "td3",
         "noise",

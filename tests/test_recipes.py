@@ -129,7 +129,7 @@ def test_an_unknown_recipe_name_lists_the_shipped_ones():
 
 
 @pytest.mark.parametrize("name", SIX)
-def test_train_with_every_recipe(name, tmp_path, capsys):
+def test_train_with_every_recipe(name, tmp_path, capsys, short_episodes):
     algo = load_recipe(name).algo
     argv = [
         "train",

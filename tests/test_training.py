@@ -46,8 +46,9 @@ def test_every_algorithm_trains_on_every_scenario(algo, scenario, tiny_runs):
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
-def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
-    cfg = tiny_config(algo, "compound", tmp_path, total_steps=2 * TINY[algo]["total_steps"])
+def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch, short_episodes):
+    total = 2 * TINY[algo]["total_steps"]
+    cfg = tiny_config(algo, "compound", tmp_path, total_steps=total, threads=2)
     original = Trainer.save_checkpoint
     calls = {"n": 0}
 
@@ -68,16 +69,19 @@ def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch):
     assert 0 < latest["frames"] < cfg.total_steps
     assert not (run / "policy.pt").exists()
     state = torch.load(run / "checkpoints" / latest["path"] / "state.pt", weights_only=False)
-    overrides = {"algo": algo, "threads": 2}  # the same algorithm; another thread count
-    result = train(None, resume=run, progress=False, overrides=overrides)
     assert torch.get_num_threads() == 2
+    overrides = {"algo": algo, "threads": 1}  # the same algorithm; another thread count
+    result = train(None, resume=run, progress=False, overrides=overrides)
+    assert torch.get_num_threads() == 1
     assert result["summary"]["frames"] >= cfg.total_steps
     assert result["summary"]["updates"] > state["agent"]["updates"]
     steps = [s for s, _ in read_curves(run)["time/updates"]]
     assert steps == sorted(steps) and len(set(steps)) == len(steps), "no step logged twice"
 
 
-def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(tmp_path, monkeypatch):
+def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(
+    tmp_path, monkeypatch, short_episodes
+):
     """SIGTERM (a batch scheduler's pre-emption or time limit) stops the loop after the current
     batch with a checkpoint of it, even between two checkpoint intervals; the signal handlers
     are put back, and ``--resume`` completes the run."""
@@ -117,7 +121,7 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(tmp_path, monke
     assert cli_main(["train", "--algo", "sac"]) == 128 + signal.SIGTERM
 
 
-def test_a_finished_run_continues_to_a_larger_total(tmp_path):
+def test_a_finished_run_continues_to_a_larger_total(tmp_path, short_episodes):
     """``--resume RUN --total-steps N`` continues a finished run from its last checkpoint: the
     replay buffer and counters carry on, config.json records the new total, and with
     ``keep_best`` the final policy is the best periodic actor of the whole run (or the best
@@ -268,7 +272,7 @@ def test_curricula_reach_the_training_env_only():
     assert env_kwargs(cfg)["config"] == DockingConfig()  # what evaluations build on
 
 
-def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
+def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys, short_episodes):
     args = [
         "train",
         "--algo",
@@ -345,7 +349,7 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys):
         cli_main(["train", "--total-steps", "256"])
 
 
-def test_wandb_offline_logging(tmp_path, monkeypatch):
+def test_wandb_offline_logging(tmp_path, monkeypatch, short_episodes):
     monkeypatch.setenv("WANDB_SILENT", "true")
     cfg = tiny_config("ppo", "noise", tmp_path, logger="wandb", total_steps=256)
     train(cfg, progress=False)
@@ -390,7 +394,7 @@ def test_ppo_reward_scale_scales_the_learning_signal_not_the_data(tmp_path):
     assert critic_loss(0.1) < 0.2 * critic_loss(1.0)
 
 
-def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path):
+def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path, short_episodes):
     cfg = tiny_config("ppo", "compound", tmp_path, reward_scale=0.1, contact_speed_penalty=2000.0)
     result = train(cfg, progress=False)
     assert result["summary"]["updates"] > 0
@@ -421,7 +425,9 @@ def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
         tiny_config("ppo", "noise", tmp_path, lr_schedule="cosine")
 
 
-def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(tmp_path, monkeypatch):
+def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(
+    tmp_path, monkeypatch, short_episodes
+):
     """Periodic evaluations score 50, 90, 10 %: the saved policy and the final evaluation use
     the actor of the second one; the checkpoint carries it for a resumed run."""
     import dockingrl.training as training
@@ -455,7 +461,9 @@ def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(tmp_path,
     assert state["best"]["frames"] == 512 and state["best"]["success"] == 90.0
 
 
-def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_path, monkeypatch):
+def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(
+    tmp_path, monkeypatch, short_episodes
+):
     """Periodic evaluations score 50, 90, 70 %; the two best actors (90, 70) are scored again
     on the same validation episodes (95 and 80 %): the run ends with the first (loaded again
     after the second was scored), policy.pt holds it, and the validation seed differs from
@@ -524,7 +532,7 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(tmp_pat
     assert trainer.candidates[0]["frames"] == state["best"]["frames"] == 512
 
 
-def test_runs_with_an_averaged_actor_evaluate_and_save_it(tmp_path, monkeypatch):
+def test_runs_with_an_averaged_actor_evaluate_and_save_it(tmp_path, monkeypatch, short_episodes):
     """With ``actor_average`` every evaluation sees the averaged actor (never the live one
     that explores), and policy.pt holds the averaged weights of the last checkpoint."""
     import dockingrl.training as training
@@ -551,7 +559,7 @@ def test_runs_with_an_averaged_actor_evaluate_and_save_it(tmp_path, monkeypatch)
         assert torch.equal(saved[k], v), k
 
 
-def test_time_budget_stops_training_early_and_says_so(tmp_path):
+def test_time_budget_stops_training_early_and_says_so(tmp_path, short_episodes):
     cfg = tiny_config("ppo", "noise", tmp_path, total_steps=2048, time_budget_s=1e-6)
     result = train(cfg, progress=False)
     summary = result["summary"]
@@ -562,7 +570,7 @@ def test_time_budget_stops_training_early_and_says_so(tmp_path):
         tiny_config("ppo", "noise", tmp_path, time_budget_s=-1.0)
 
 
-def test_ppo_stable_baselines3_style_policy_options(tmp_path):
+def test_ppo_stable_baselines3_style_policy_options(tmp_path, short_episodes):
     """``state_independent_scale``: one learned scale per action, the same for every
     observation; ``orthogonal_init``: orthogonal layers, a near-zero policy output; ``tanh``
     activations; the saved policy rebuilds them; an unknown activation is refused."""
@@ -627,7 +635,7 @@ def test_field_value_overrides_are_typed_and_checked():
 
 
 def test_privileged_critic_run_checkpoints_its_buffer_and_saves_an_observation_only_policy(
-    tmp_path,
+    tmp_path, short_episodes
 ):
     cfg = tiny_config("sac", "compound", tmp_path, privileged_critic=True, final_eval_episodes=4)
     train(cfg, progress=False)
@@ -649,7 +657,7 @@ def test_privileged_critic_run_checkpoints_its_buffer_and_saves_an_observation_o
     assert policy(td)["action"].shape == (3, 2)
 
 
-def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys):
+def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys, short_episodes):
     """``dockingrl eval`` of a policy trained with scaled USBL noise and a learned filter
     file evaluates it in that world (and reproduces the run's own final evaluation);
     ``--filter-params none`` and the noise flags put it back in the paper's."""
