@@ -135,6 +135,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     if out is not None and out.exists() and not out.is_dir():
         raise NotADirectoryError(f"--out {out}: a file, not a folder")
+    if args.video:
+        from dockingrl.render import VIDEO_SUFFIXES
+
+        if Path(args.video).suffix.lower() not in VIDEO_SUFFIXES:
+            raise UsageError(f"--video {args.video}: the suffix must be one of .gif, .mp4")
     start = time.perf_counter()
     metrics = evaluate(
         policy,
@@ -189,6 +194,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
             plot_trajectories(
                 cases, out / "trajectories.png", footer=footer_text(device=args.device)
             )
+    if args.video:
+        from dockingrl.render import write_video
+
+        video = write_video(
+            policy, scenario, args.video, episodes=args.video_episodes, seed=args.seed, **env_kwargs
+        )
+        print(f"video: {video}")
     wall = time.perf_counter() - start
     print(f"wall-clock {wall:.1f} s" + (f"; results in {out}/" if out else ""))
     return 0
@@ -287,6 +299,15 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
     ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")
     ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")
+    ev.add_argument(
+        "--video",
+        metavar="PATH",
+        default=None,
+        help="also a GIF (.gif) or MP4 (.mp4) of --video-episodes episodes, drawn as Figure 10",
+    )
+    ev.add_argument(
+        "--video-episodes", type=COUNT, default=3, help="episodes in the --video (default 3)"
+    )
     ev.add_argument(
         "--use-filter",
         action="store_true",

@@ -86,6 +86,7 @@ def run_episodes(
         "contact_score": zeros.clone(),
         "contact_speed": zeros.clone(),
         "steps": torch.zeros(n, dtype=torch.int64, device=sim.device),
+        "transitions": torch.zeros(n, dtype=torch.int64, device=sim.device),
         "total_reward": zeros.clone(),
     }
     bar = None
@@ -105,6 +106,7 @@ def run_episodes(
             nxt = td["next"]
             reward = nxt["reward"].squeeze(-1)
             out["total_reward"] += torch.where(active, reward, torch.zeros_like(reward))
+            out["transitions"] += active.long()
             done = nxt["done"].squeeze(-1) & active
             for key, source in (
                 ("success", "success"),
@@ -379,11 +381,12 @@ def trajectories(
 def episode_record(outcomes: dict[str, torch.Tensor], i: int, config) -> dict:
     """Episode ``i`` of :func:`run_episodes`' outcomes (``record_trajectories=True``) as
     :func:`~dockingrl.plots.plot_trajectories` draws it: its ``path`` of true poses to the
-    end, ``docked``, ``success``, ``r_g`` (eq. 11; NaN without contact) and ``time_s``."""
+    end, one per decision of the policy (every ``action_repeat`` env steps), ``docked``,
+    ``success``, ``r_g`` (eq. 11; NaN without contact) and ``time_s``."""
     steps = int(outcomes["steps"][i])
     docked = bool(outcomes["docked"][i])
     return {
-        "path": outcomes["trajectory"][i, : steps + 1].tolist(),
+        "path": outcomes["trajectory"][i, : int(outcomes["transitions"][i]) + 1].tolist(),
         "docked": docked,
         "success": bool(outcomes["success"][i]),
         "r_g": float(outcomes["contact_score"][i]) * config.contact_weight if docked else math.nan,

@@ -41,7 +41,7 @@ class DockingRenderer:
         width, height = size
         self.figure = Figure(figsize=(width / 100, height / 100), dpi=100)
         self.canvas = FigureCanvasAgg(self.figure)
-        self.axes = ax = self.figure.add_axes((0.09, 0.13, 0.88, 0.78))
+        self.axes = ax = self.figure.add_axes((0.11, 0.13, 0.86, 0.78))
         ax.plot([-2.0, 0.0, -2.0], [1.0, 0.0, -1.0], color="k", lw=2)
         (x0, x1), (y0, y1) = self.config.dock_x, self.config.dock_y
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, color="0.8", zorder=0))
@@ -158,6 +158,7 @@ def write_video(
     config = env.base_env.config
     outcomes = run_episodes(policy, env, record_trajectories=True)
     renderer = DockingRenderer(config)
+    repeat = env_kwargs.get("action_repeat", 1)  # env steps between two points of a track
 
     def frames():
         for i in range(episodes):
@@ -166,7 +167,8 @@ def write_video(
             current = outcomes["ocean_current"][i].tolist()
             last = len(track) - 1
             for k in [*range(0, last, every), last]:
-                title = f"{scenario}, episode {i + 1}/{episodes}, t = {k * config.dt:.1f} s"
+                seconds = min(k * repeat * config.dt, record["time_s"])
+                title = f"{scenario}, episode {i + 1}/{episodes}, t = {seconds:.1f} s"
                 if k == last:
                     title += f", {_outcome(record)}"
                 frame = renderer.draw(track[: k + 1], current, title=title)

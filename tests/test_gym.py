@@ -293,6 +293,33 @@ def test_write_video_gif_and_mp4(tmp_path):
         write_video(forward, "noise", tmp_path / "a.avi")
 
 
+def test_a_track_has_one_pose_per_decision_with_action_repeat(tmp_path):
+    """With ``action_repeat`` 4, a 12-step episode is 3 decisions: its track has 4 poses, the
+    last one where the episode ended, and the video's clock counts env steps."""
+    from dockingrl.evaluation import episode_record, run_episodes
+
+    def forward(td):
+        return td.set("action", torch.tensor([[0.8, 0.0]]).expand(td.batch_size[0], 2))
+
+    config = DockingConfig(max_steps=12)
+    env = make_env("noise", 2, seed=0, config=config, action_repeat=4)
+    outcomes = run_episodes(forward, env, record_trajectories=True)
+    record = episode_record(outcomes, 0, config)
+    assert len(record["path"]) == 4 and record["time_s"] == pytest.approx(12 * config.dt)
+    assert record["path"][-1] == outcomes["end"][0].tolist()
+    assert record["path"][0] == outcomes["start"][0].tolist()
+
+
+def test_eval_writes_a_video_and_refuses_a_bad_suffix_first(tmp_path, capsys):
+    from dockingrl.cli import main
+
+    path = tmp_path / "run.gif"
+    assert main(["eval", "--episodes", "2", "--video", str(path), "--video-episodes", "1"]) == 0
+    assert len(imageio.mimread(path)) > 2
+    with pytest.raises(SystemExit, match="--video a.avi: the suffix must be one of .gif, .mp4"):
+        main(["eval", "--episodes", "2", "--video", "a.avi"])
+
+
 # -- stable-baselines3 -----------------------------------------------------------------------
 sb3 = pytest.importorskip("stable_baselines3")
 
