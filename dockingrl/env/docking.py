@@ -18,6 +18,17 @@ from dockingrl.env.dynamics import (
     pose_update,
     velocity_update,
 )
+from dockingrl.env.realism import (
+    SENSOR_OF_ENTRY,
+    SENSORS,
+    draw_scales,
+    dropout_step,
+    dropout_transition,
+    limit_thrust,
+    ou_current_step,
+    usbl_outlier,
+    vehicle_parameters,
+)
 from dockingrl.env.reward import (
     contact_reward,
     contact_score,
@@ -29,6 +40,8 @@ from dockingrl.env.reward import (
 OBSERVATION_DIM = 6
 TRUE_STATE_DIM = 6
 ACTION_DIM = 2
+#: added to the env's seed for its realism generator (:attr:`DockingEnv.realism_rng`)
+REALISM_SEED_OFFSET = 0x5EA1
 
 
 def _uniform(low: float, high: float, n: int, generator, device, dtype) -> torch.Tensor:
@@ -180,6 +193,7 @@ class DockingEnv(EnvBase):
         self._step_count = torch.zeros(n, 1, device=dev, dtype=torch.int64)
         self._pinned_pose: torch.Tensor | None = None
         self._pinned_current: torch.Tensor | None = None
+        self._make_realism_state()
         if seed is None:
             seed = int(torch.randint(0, 2**62, (1,)).item())
         self.set_seed(seed)
@@ -198,6 +212,26 @@ class DockingEnv(EnvBase):
         self._action_low = vector(*cfg.action_low)
         self._action_high = vector(*cfg.action_high)
         self._noise_std = vector(*cfg.observation_noise_std)
+
+    def _make_realism_state(self) -> None:
+        """The per-env state of the realism options that are on (docs/realism.md)."""
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+        if cfg.dynamics_mismatch:
+            self._scales = torch.ones(n, 5, device=dev, dtype=dtype)
+            self._vehicle = vehicle_parameters(cfg, self._scales)
+        else:
+            self._vehicle = None
+        if cfg.current_model:
+            self._current_mean = torch.zeros(n, 2, device=dev, dtype=dtype)
+            self._current_bias = torch.zeros(n, 2, device=dev, dtype=dtype)
+            self._known_current = torch.zeros(n, 2, device=dev, dtype=dtype)
+        if cfg.sensor_timing:
+            history = cfg.usbl_latency_steps + 1
+            self._held = torch.zeros(n, OBSERVATION_DIM, device=dev, dtype=dtype)
+            self._sensor_steps = torch.zeros(n, len(SENSORS), device=dev, dtype=torch.int64)
+            self._usbl_history = torch.zeros(n, history, 2, device=dev, dtype=dtype)
+            self._lost = torch.zeros(n, 1, device=dev, dtype=torch.bool)
+            self._sensor_entry = torch.tensor(SENSOR_OF_ENTRY, device=dev)
 
     def _make_specs(self) -> None:
         cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
@@ -219,6 +253,10 @@ class DockingEnv(EnvBase):
             shape=(n,),
             device=dev,
         )
+        if cfg.sensor_timing:
+            self.observation_spec["sensor_age"] = unbounded(len(SENSORS))
+        if cfg.current_model:
+            self.observation_spec["true_ocean_current"] = unbounded(2)
         self.action_spec = Bounded(
             low=torch.tensor(cfg.action_low, dtype=dtype).expand(n, ACTION_DIM).clone(),
             high=torch.tensor(cfg.action_high, dtype=dtype).expand(n, ACTION_DIM).clone(),
@@ -236,6 +274,8 @@ class DockingEnv(EnvBase):
             return
         self.rng = torch.Generator(device=self.device)
         self.rng.manual_seed(int(seed))
+        self.realism_rng = torch.Generator(device=self.device)
+        self.realism_rng.manual_seed((int(seed) + REALISM_SEED_OFFSET) % 2**63)
 
     def set_initial_state(
         self, pose: torch.Tensor | None = None, ocean_current: torch.Tensor | None = None
@@ -266,6 +306,13 @@ class DockingEnv(EnvBase):
 
         self._pinned_pose = check(pose, 3, "pose")
         self._pinned_current = check(ocean_current, 2, "ocean_current")
+
+    @property
+    def vehicle_scales(self) -> torch.Tensor | None:
+        """``(num_envs, 5)`` this episode's factors on mass, damping, thrust, PID gains and
+        response time of each env (:attr:`DockingConfig.mass_scale` and the following), a
+        copy; ``None`` when no dynamics-mismatch option is on."""
+        return None if self._vehicle is None else self._scales.clone()
 
     #: the simulator's whole state, as :meth:`get_state` returns it (``step_count`` is int64),
     #: and the attribute holding each entry
@@ -346,19 +393,29 @@ class DockingEnv(EnvBase):
         return next_state, out
 
     # -- helpers -------------------------------------------------------------------------
-    def _observe(self) -> torch.Tensor:
-        """Eq. 2 on the true state, plus the Gaussian noise of Table 2 when enabled."""
+    def _clean_observation(self) -> torch.Tensor:
+        """Eq. 2 on the true state."""
         x, y, alpha = self._pose.unbind(-1)
         u, v, r = self._velocity.unbind(-1)
-        obs = observation_from_state(x, y, alpha, u, v, r, self._current)
+        return observation_from_state(x, y, alpha, u, v, r, self._current)
+
+    def _observe(self) -> torch.Tensor:
+        """Eq. 2 on the true state, plus the Gaussian noise of Table 2 when enabled."""
+        obs = self._clean_observation()
         if not self.config.noise:
             return obs
         return noisy_observation(obs, self._sample_noise(), self._noise_std)
 
     def _output(self, **entries: torch.Tensor) -> TensorDict:
         # the env's state tensors are replaced, never modified in place: no copies needed
+        current = self._current
+        if self.config.current_model:
+            current = self._known_current
+            entries["true_ocean_current"] = self._current
+        if self.config.sensor_timing:
+            entries["sensor_age"] = self._sensor_steps.to(self.dtype) * self.config.dt
         return TensorDict(
-            {"ocean_current": self._current, "step_count": self._step_count, **entries},
+            {"ocean_current": current, "step_count": self._step_count, **entries},
             batch_size=self.batch_size,
             device=self.device,
         )
@@ -409,6 +466,10 @@ class DockingEnv(EnvBase):
             pose = self._pinned_pose
         if self._pinned_current is not None:
             current = self._pinned_current
+        current_mean = current
+        if cfg.current_time_constant > 0:
+            deviation = torch.randn(n, 2, generator=self.realism_rng, device=dev, dtype=dtype)
+            current = current_mean + cfg.current_variation_std * deviation
         mask = None if tensordict is None else tensordict.get("_reset", None)
         if mask is None:
             self._pose = pose
@@ -425,10 +486,15 @@ class DockingEnv(EnvBase):
             self._integral = self._integral.masked_fill(mask, 0.0)
             self._previous_error = self._previous_error.masked_fill(mask, 0.0)
             self._step_count = self._step_count.masked_fill(mask, 0)
+        if cfg.realistic:
+            rows = torch.ones(n, 1, dtype=torch.bool, device=dev) if mask is None else mask
+            observation = self._reset_realism(rows, current_mean)
+        else:
+            observation = self._observe()
         false = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         zero = torch.zeros(n, 1, dtype=dtype, device=dev)
         out = self._output(
-            observation=self._observe(),
+            observation=observation,
             true_state=torch.cat((self._pose, self._velocity), dim=-1),
             done=false,
             terminated=false.clone(),
@@ -440,6 +506,87 @@ class DockingEnv(EnvBase):
         if self.check_finite:
             self._check_finite(out, "reset")
         return out
+
+    def _reset_realism(self, rows: torch.Tensor, current_mean: torch.Tensor) -> torch.Tensor:
+        """Start the realism state of the envs in ``rows`` ``(n, 1)`` (their true state is
+        reset already; ``current_mean`` is their drawn current) and return the observation:
+        every sensor reports at an episode's start."""
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+        gen = self.realism_rng
+        if cfg.dynamics_mismatch:
+            scales = draw_scales(cfg, n, gen, dev, dtype)
+            self._scales = torch.where(rows, scales, self._scales)
+            self._vehicle = vehicle_parameters(cfg, self._scales)
+        if cfg.current_model:
+            self._current_mean = torch.where(rows, current_mean, self._current_mean)
+            if cfg.current_knowledge_bias > 0:
+                bias = torch.randn(n, 2, generator=gen, device=dev, dtype=dtype)
+                bias = cfg.current_knowledge_bias * bias
+                self._current_bias = torch.where(rows, bias, self._current_bias)
+            self._known_current = self._believed_current()
+        if not cfg.sensor_timing:
+            return self._observe()
+        clean = self._clean_observation()
+        reading = clean
+        if cfg.noise:
+            reading = noisy_observation(clean, self._sample_noise(), self._noise_std)
+        self._held = torch.where(rows, reading, self._held)
+        self._sensor_steps = self._sensor_steps.masked_fill(rows, 0)
+        history = clean[:, None, :2].expand_as(self._usbl_history)
+        self._usbl_history = torch.where(rows.unsqueeze(-1), history, self._usbl_history)
+        self._lost = self._lost & ~rows
+        return self._held
+
+    def _believed_current(self) -> torch.Tensor:
+        """The current the vehicle believes: the true one, its episode's bias and this step's
+        noise (:attr:`DockingConfig.current_knowledge_bias` and ``current_knowledge_noise``)."""
+        cfg = self.config
+        believed = self._current + self._current_bias
+        if cfg.current_knowledge_noise > 0:
+            shape = (self.num_envs, 2)
+            noise = torch.randn(
+                shape, generator=self.realism_rng, device=self.device, dtype=self.dtype
+            )
+            believed = believed + cfg.current_knowledge_noise * noise
+        return believed
+
+    def _sense(self, clean: torch.Tensor, noise: torch.Tensor | None) -> torch.Tensor:
+        """The sensors' readings after a step from the noise-free observation ``clean``: a
+        USBL fix of the vehicle ``usbl_latency`` ago every ``usbl_period`` unless lost to a
+        dropout, sometimes an outlier; DVL and IMU readings at their periods; every reading
+        held between its arrivals (:attr:`_held`); ages counted in :attr:`_sensor_steps`."""
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+        gen = self.realism_rng
+        step = self._step_count
+        usbl = clean[:, :2]
+        if cfg.usbl_latency_steps > 0:
+            history = torch.cat((self._usbl_history[:, 1:], usbl.unsqueeze(1)), dim=1)
+            self._usbl_history = history
+            usbl = history[:, 0]
+        reading = torch.cat((usbl, clean[:, 2:]), dim=-1)
+        if noise is not None:
+            reading = noisy_observation(reading, noise, self._noise_std)
+        usbl_due = step % cfg.usbl_period_steps == 0
+        usbl_fix = usbl_due
+        if cfg.usbl_dropout_probability > 0:
+            uniform = torch.rand(n, 1, generator=gen, device=dev, dtype=dtype)
+            transition = dropout_transition(cfg.usbl_dropout_probability, cfg.usbl_dropout_burst)
+            lost = dropout_step(self._lost, uniform, *transition)
+            self._lost = torch.where(usbl_due, lost, self._lost)
+            usbl_fix = usbl_due & ~self._lost
+        if cfg.usbl_outlier_probability > 0:
+            draws = torch.rand(n, 2, generator=gen, device=dev, dtype=dtype)
+            outlier = draws[:, 0] < cfg.usbl_outlier_probability
+            direction = (2.0 * torch.pi) * draws[:, 1]
+            moved = usbl_outlier(reading[:, :2], cfg.usbl_outlier_distance, direction, outlier)
+            reading = torch.cat((moved, reading[:, 2:]), dim=-1)
+        fresh = torch.cat(
+            (usbl_fix, step % cfg.dvl_period_steps == 0, step % cfg.imu_period_steps == 0),
+            dim=-1,
+        )
+        self._held = torch.where(fresh[:, self._sensor_entry], reading, self._held)
+        self._sensor_steps = torch.where(fresh, 0, self._sensor_steps + 1)
+        return self._held
 
     def _check_finite(self, out: TensorDictBase, when: str) -> None:
         """Raise ``FloatingPointError`` at the first entry holding a NaN or inf (``check_finite``):
@@ -490,6 +637,8 @@ class DockingEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = self._validated_action(tensordict.get("action"))
+        if self.config.realistic:
+            return self._step_realistic(action)
         noise = self._sample_noise() if self.config.noise else None
         (
             self._pose,
@@ -513,6 +662,54 @@ class DockingEnv(EnvBase):
             self._check_finite(out, "step")
         return out
 
+    def _step_realistic(self, action: torch.Tensor) -> TensorDictBase:
+        """:meth:`_step` with realism options on: the episode's vehicle, the sensors' timing and
+        faults, the current's variation and the vehicle's belief about it. Table 2's noise is
+        drawn as in the paper's task, the rest from :attr:`realism_rng`."""
+        cfg = self.config
+        noise = self._sample_noise() if cfg.noise else None
+        (
+            self._pose,
+            self._velocity,
+            self._integral,
+            self._previous_error,
+            self._step_count,
+            out,
+        ) = self._transition(
+            self._pose,
+            self._velocity,
+            self._current,
+            self._integral,
+            self._previous_error,
+            self._step_count,
+            action,
+            None,
+            self._vehicle,
+        )
+        if cfg.sensor_timing:
+            out["observation"] = self._sense(out["observation"], noise)
+        elif noise is not None:
+            out["observation"] = noisy_observation(out["observation"], noise, self._noise_std)
+        if cfg.current_time_constant > 0:
+            shape = (self.num_envs, 2)
+            draw = torch.randn(
+                shape, generator=self.realism_rng, device=self.device, dtype=self.dtype
+            )
+            self._current = ou_current_step(
+                self._current,
+                self._current_mean,
+                cfg.dt,
+                cfg.current_time_constant,
+                cfg.current_variation_std,
+                draw,
+            )
+        if cfg.current_model:
+            self._known_current = self._believed_current()
+        out = self._output(**out)
+        if self.check_finite:
+            self._check_finite(out, "step")
+        return out
+
     def _sample_noise(self) -> torch.Tensor:
         shape = (self.num_envs, OBSERVATION_DIM)
         return torch.randn(shape, generator=self.rng, device=self.device, dtype=self.dtype)
@@ -526,19 +723,42 @@ class DockingEnv(EnvBase):
         speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
 
         def transition(
-            pose, velocity, current, integral, previous_error, step_count, action, noise
+            pose,
+            velocity,
+            current,
+            integral,
+            previous_error,
+            step_count,
+            action,
+            noise,
+            vehicle=None,
         ):
             error = action - velocity[:, 0::2]
-            tau, integral = pid_thrust(
-                error, integral, previous_error, kp, ki, kd, cfg.dt, cfg.max_thrust
-            )
+            if vehicle is None:
+                tau, integral = pid_thrust(
+                    error, integral, previous_error, kp, ki, kd, cfg.dt, cfg.max_thrust
+                )
+                masses, damping = inertia, (cfg.linear_damping, cfg.quadratic_damping)
+            else:
+                thrust = vehicle["max_thrust"]
+                tau, integral = pid_thrust(
+                    error,
+                    integral,
+                    previous_error,
+                    vehicle["kp"],
+                    vehicle["ki"],
+                    vehicle["kd"],
+                    cfg.dt,
+                    thrust,
+                )
+                tau = limit_thrust(tau, thrust, cfg.reverse_thrust_loss, cfg.turning_surge_loss)
+                masses, damping = vehicle["inertia"], (vehicle["linear"], vehicle["quadratic"])
             tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
             velocity = velocity_update(
                 velocity,
                 tau3,
-                inertia,
-                cfg.linear_damping,
-                cfg.quadratic_damping,
+                masses,
+                *damping,
                 cfg.max_acceleration,
                 cfg.max_velocity,
                 cfg.dt,

@@ -35,7 +35,7 @@ def pid_thrust(
     ki: torch.Tensor,
     kd: torch.Tensor,
     dt: float,
-    max_thrust: float,
+    max_thrust: float | torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Low-level PID velocity controller of Sec. 4.1: velocity error -> tau.
 
@@ -47,7 +47,8 @@ def pid_thrust(
         error: ``(..., k)`` commanded minus measured velocity, one column per actuated axis.
         integral: ``(..., k)`` running integral of the error.
         previous_error: ``(..., k)`` error at the previous step (derivative term).
-        kp, ki, kd: ``(k,)`` gains per axis.
+        kp, ki, kd: ``(k,)`` gains per axis, or ``(..., k)`` per env.
+        max_thrust: the limit, a number or a ``(..., 1)`` tensor per env.
 
     Returns:
         ``(tau, integral)``: the clipped thrust ``(..., k)`` and the updated integral.
@@ -59,7 +60,9 @@ def pid_thrust(
     return tau.clamp(-max_thrust, max_thrust), integral
 
 
-def hydrodynamic_damping(velocity: torch.Tensor, linear: float, quadratic: float) -> torch.Tensor:
+def hydrodynamic_damping(
+    velocity: torch.Tensor, linear: float | torch.Tensor, quadratic: float | torch.Tensor
+) -> torch.Tensor:
     """Damping force of eq. 36: ``d = K_dl * v + K_qdl * |v| * v``."""
     return linear * velocity + quadratic * velocity.abs() * velocity
 
@@ -68,8 +71,8 @@ def velocity_update(
     velocity: torch.Tensor,
     tau: torch.Tensor,
     inertia: torch.Tensor,
-    linear_damping: float,
-    quadratic_damping: float,
+    linear_damping: float | torch.Tensor,
+    quadratic_damping: float | torch.Tensor,
     max_acceleration: float,
     max_velocity: float,
     dt: float,
@@ -79,7 +82,8 @@ def velocity_update(
     Args:
         velocity: ``(..., 3)`` body velocity ``(u, v, r)`` through the water.
         tau: ``(..., 3)`` force / moment per axis (sway has no actuator: 0).
-        inertia: ``(3,)`` mass (surge, sway) and yaw inertia.
+        inertia: ``(3,)`` mass (surge, sway) and yaw inertia, or ``(..., 3)`` per env.
+        linear_damping, quadratic_damping: numbers, or ``(..., 1)`` tensors per env.
     """
     damping = hydrodynamic_damping(velocity, linear_damping, quadratic_damping)
     acceleration = ((tau - damping) / inertia).clamp(-max_acceleration, max_acceleration)
