@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import torch
 
 from dockingrl.env.dynamics import observation_from_state, pose_from_observation, wrap_angle
+from dockingrl.env.realism import SENSOR_OF_ENTRY, SENSORS
 
 STATE_DIM = 5
 MEASUREMENT_DIM = 6
@@ -32,6 +33,14 @@ MEASUREMENT_NOISE_STD = (0.025, math.radians(1.5), math.radians(3.0), 0.02, 0.02
 #: Smallest range used in the measurement model, its Jacobian and R: the bearing is undefined at
 #: the DS itself, so ``rho`` is floored there (the "rho -> 0 guard").
 MIN_RANGE = 1e-2
+#: the measurement entries of each sensor, in :data:`~dockingrl.env.realism.SENSORS`' order
+#: (USBL: range and bearing; DVL: the two ground velocities; IMU: heading and yaw rate)
+SENSOR_ENTRIES = tuple(
+    tuple(i for i, s in enumerate(SENSOR_OF_ENTRY) if s == sensor) for sensor in range(len(SENSORS))
+)
+#: chi-square quantiles with 2 degrees of freedom (each sensor gives two numbers): a gate at
+#: 13.8 rejects 0.1 % of the readings that follow the model, at 9.21 1 %
+CHI2_2DOF_999 = 13.816
 
 
 # --- layout helpers ----------------------------------------------------------------------------
@@ -318,6 +327,8 @@ def ekf_update(
     R: torch.Tensor,
     *,
     diagonal: bool = False,
+    arrived: torch.Tensor | None = None,
+    gate: float | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Update step, eqs. 30-34, with the covariance in Joseph form.
 
@@ -338,6 +349,13 @@ def ekf_update(
         current: ``(..., 2)`` ocean current.
         R: ``(..., 6, 6)`` measurement covariance, broadcastable against the batch.
         diagonal: ``R`` is diagonal and given as its ``(..., 6)`` variances (cheaper).
+        arrived: ``(..., 6)`` bool, which entries of ``z`` are new readings (not in the paper;
+            sensors at their own rates): the others do not update, so an env whose sensors all
+            held their readings keeps its predicted ``(mean, cov)`` exactly. ``None``: all.
+        gate: reject a sensor's two readings when their innovation's squared Mahalanobis
+            distance ``y_s^T S_s^-1 y_s`` (:func:`sensor_innovation_distance`) exceeds this
+            chi-square threshold (2 degrees of freedom, e.g. :data:`CHI2_2DOF_999`): an
+            outlier then leaves the estimate as predicted. ``None``: no gate.
 
     Returns:
         The corrected ``(mean, cov)``, ``cov`` symmetric.
@@ -349,8 +367,68 @@ def ekf_update(
         _vector_to_last(z),
         _vector_to_last(current),
         *_noise_to_last(R, batch, diagonal),
+        _arrived_to_last(arrived, batch),
+        _checked_gate(gate),
     )
     return _vector_from_last(m, batch), _matrix_from_last(P, batch)
+
+
+def _checked_gate(gate: float | None) -> float | None:
+    if gate is not None and not (isinstance(gate, int | float) and 0 < gate < math.inf):
+        raise ValueError(f"gate must be a positive chi-square threshold or None, got {gate!r}")
+    return gate
+
+
+def _arrived_to_last(arrived: torch.Tensor | None, batch: torch.Size) -> torch.Tensor | None:
+    if arrived is None:
+        return None
+    if arrived.dtype != torch.bool or arrived.shape[-1] != MEASUREMENT_DIM:
+        raise ValueError(
+            f"arrived must be a bool (..., {MEASUREMENT_DIM}) tensor, got {arrived.dtype} "
+            f"{tuple(arrived.shape)}"
+        )
+    return _vector_to_last(arrived.expand(*batch, MEASUREMENT_DIM))
+
+
+def _sensor_distances(P, H, y, noise, full):
+    """Squared Mahalanobis distance of each sensor's two innovations, ``(3, N)``, batch-last,
+    before whitening: ``S_s = H_s P H_s^T + R_s``."""
+    distances = []
+    for i, j in SENSOR_ENTRIES:
+        Ph_i = (P * H[i].unsqueeze(0)).sum(1)
+        Ph_j = (P * H[j].unsqueeze(0)).sum(1)
+        if full:
+            r_ii, r_ij, r_jj = ((noise[a] * noise[b]).sum(0) for a, b in ((i, i), (i, j), (j, j)))
+        else:
+            r_ii, r_ij, r_jj = noise[i] ** 2, torch.zeros_like(noise[i]), noise[j] ** 2
+        s_ii = (H[i] * Ph_i).sum(0) + r_ii
+        s_ij = (H[i] * Ph_j).sum(0) + r_ij
+        s_jj = (H[j] * Ph_j).sum(0) + r_jj
+        det = s_ii * s_jj - s_ij * s_ij
+        distances.append((s_jj * y[i] ** 2 - 2.0 * s_ij * y[i] * y[j] + s_ii * y[j] ** 2) / det)
+    return torch.stack(distances, dim=0)
+
+
+def sensor_innovation_distance(
+    mean: torch.Tensor,
+    cov: torch.Tensor,
+    z: torch.Tensor,
+    current: torch.Tensor,
+    R: torch.Tensor,
+    *,
+    diagonal: bool = False,
+) -> torch.Tensor:
+    """Each sensor's squared Mahalanobis innovation distance ``y_s^T S_s^-1 y_s``, ``(..., 3)``
+    in :data:`~dockingrl.env.realism.SENSORS`' order (USBL, DVL, IMU), with ``y_s`` and ``S_s``
+    the sensor's two entries of eqs. 30-31 at the prior ``(mean, cov)``; chi-square with 2
+    degrees of freedom when the filter's model holds. What ``gate`` compares."""
+    batch = mean.shape[:-1]
+    m, cur = _vector_to_last(mean), _vector_to_last(current)
+    H = _measurement_jacobian(m, cur, batch_last=True)
+    y = _innovation(m, _vector_to_last(z), cur, dim=0)
+    noise, full = _noise_to_last(R, batch, diagonal)
+    P = _matrix_to_last(cov, batch)
+    return _vector_from_last(_sensor_distances(P, H, y, noise, full), batch)
 
 
 def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[torch.Tensor, bool]:
@@ -367,9 +445,13 @@ def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[
     return _matrix_to_last(torch.linalg.cholesky(R), batch), True
 
 
-def _update(m, P, z, current, noise, full):
+def _update(m, P, z, current, noise, full, arrived=None, gate=None):
     H = _measurement_jacobian(m, current, batch_last=True)  # (6, 5, N)
     y = _innovation(m, z, current, dim=0)  # (6, N)
+    if gate is not None:
+        accepted = _sensor_distances(P, H, y, noise, full) <= gate  # (3, N)
+        accepted = accepted[list(SENSOR_OF_ENTRY)]
+        arrived = accepted if arrived is None else arrived & accepted
     if full:  # whiten with the Cholesky factor L of R: L y' = y, L H' = H
         L = noise.permute(2, 0, 1)
         y = torch.linalg.solve_triangular(L, y.T.unsqueeze(-1), upper=False).squeeze(-1).T
@@ -383,6 +465,8 @@ def _update(m, P, z, current, noise, full):
         u = (P * h.unsqueeze(0)).sum(1)  # P h
         hu = (h * u).sum(0)
         K = u / (hu + 1.0)  # eqs. 31-32 for one unit-variance measurement
+        if arrived is not None:  # a zero gain leaves mean and P exactly as they are
+            K = torch.where(arrived[i], K, torch.zeros_like(K))
         shift = shift + K * (y[i] - (h * shift).sum(0))  # eq. 33
         # eq. 34 in Joseph form, M P M^T + K K^T with M = I - K h^T, without forming M:
         # M P = P - K u^T and (M P) M^T = M P - w K^T, w = (M P) h = u - K (h . u);
@@ -406,10 +490,14 @@ def ekf_step(
     k_v: float = 2.5,
     k_w: float = 2.5,
     diagonal: bool = False,
+    arrived: torch.Tensor | None = None,
+    gate: float | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`ekf_predict` then :func:`ekf_update` in one pass (no layout round trip between
-    them); ``R`` and ``diagonal`` as in :func:`ekf_update`. Returns ``(mean, cov, h(mean))``,
-    the last being the filtered observation (eq. 26 of the estimate)."""
+    them); ``R``, ``diagonal``, ``arrived`` and ``gate`` as in :func:`ekf_update`: the
+    prediction runs every step, each reading updates only when it arrived and passed the gate.
+    Returns ``(mean, cov, h(mean))``, the last being the filtered observation (eq. 26 of the
+    estimate)."""
     batch = mean.shape[:-1]
     cur = _vector_to_last(current)
     m, P = _predict(
@@ -422,7 +510,15 @@ def ekf_step(
         k_v,
         k_w,
     )
-    m, P = _update(m, P, _vector_to_last(z), cur, *_noise_to_last(R, batch, diagonal))
+    m, P = _update(
+        m,
+        P,
+        _vector_to_last(z),
+        cur,
+        *_noise_to_last(R, batch, diagonal),
+        _arrived_to_last(arrived, batch),
+        _checked_gate(gate),
+    )
     filtered = _measurement_function(m, cur, dim=0)
     return (
         _vector_from_last(m, batch),

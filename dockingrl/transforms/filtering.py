@@ -15,6 +15,7 @@ from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.utils import _get_reset
 
 from dockingrl.env.dynamics import clip_action
+from dockingrl.env.realism import SENSOR_OF_ENTRY
 from dockingrl.transforms.ekf import (
     MEASUREMENT_DIM,
     MEASUREMENT_NOISE_STD,
@@ -203,6 +204,15 @@ class NoiseContext(nn.Module):
         return q, r
 
 
+def arrived_readings(sensor_age: torch.Tensor | None) -> torch.Tensor | None:
+    """``(..., 6)`` bool, which observation entries are new readings, from the env's
+    ``sensor_age`` ``(..., 3)`` (age 0: the sensor's reading arrived this step); ``None`` for
+    ``None`` (every reading is new, the paper)."""
+    if sensor_age is None:
+        return None
+    return (sensor_age == 0)[..., list(SENSOR_OF_ENTRY)]
+
+
 class EKFTransform(Transform):
     """Filters the noisy observation with the EKF of Sec. 3.5 (eqs. 22-34).
 
@@ -241,6 +251,14 @@ class EKFTransform(Transform):
             loaded parameter file sets this to what it was fitted with.
         action_low, action_high: bounds the env clips the action to; the filter predicts with
             the clipped action that was really applied (``None``: as given).
+        gate: chi-square threshold of the innovation gate (:func:`~dockingrl.transforms.ekf.
+            ekf_update`; e.g. 13.8 for 2 degrees of freedom at 99.9 %): a sensor's readings
+            whose innovation is further are rejected as outliers. ``None``: no gate (the paper).
+        sensor_age_key: where the env reports the age of each sensor's reading (``(n, 3)``
+            s, USBL, DVL, IMU; present when a sensor-timing option of
+            :class:`~dockingrl.env.DockingConfig` is on): a sensor's readings update the
+            estimate only at an age of 0, when they arrived; the prediction runs every step.
+            Without the entry every reading updates every step (the paper).
         observation_key, action_key, current_key, out_key: tensordict keys.
         compile: run the filter step through ``torch.compile`` (faster for large batches;
             the first step pays the compilation).
@@ -267,6 +285,8 @@ class EKFTransform(Transform):
         range_noise_from: str = "measurement",
         action_low: Sequence[float] | None = None,
         action_high: Sequence[float] | None = None,
+        gate: float | None = None,
+        sensor_age_key: str = "sensor_age",
         observation_key: str = "observation",
         action_key: str = "action",
         current_key: str = "ocean_current",
@@ -282,6 +302,10 @@ class EKFTransform(Transform):
             current_key,
         )
         self.out_key = out_key
+        self.sensor_age_key = sensor_age_key
+        if gate is not None and not (isinstance(gate, int | float) and 0 < gate < math.inf):
+            raise ValueError(f"gate must be a positive chi-square threshold or None, got {gate!r}")
+        self.gate = None if gate is None else float(gate)
         self.mean_key, self.cov_key, self.age_key = "ekf_mean", "ekf_cov", "ekf_age"
         self.dt, self.k_v, self.k_w = dt, k_v, k_w
         self.process_noise = ProcessNoise(process_noise_std, manoeuvre=manoeuvre_noise)
@@ -380,11 +404,13 @@ class EKFTransform(Transform):
         low, high = self.action_bounds.to(action)
         return clip_action(action, low, high)
 
-    def filter_step(self, mean, cov, action, z, current, age):
+    def filter_step(self, mean, cov, action, z, current, age, *, sensor_age=None):
         """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
         compiles, noise models included): the previous ``action`` (clipped to the command
         bounds as the env applies it) predicts, the readings ``z`` update; ``age`` is the
-        number of updates since the estimate was initialised. Returns ``(mean, cov,
+        number of updates since the estimate was initialised. ``sensor_age`` ``(..., 3)``:
+        the env's ages of the USBL, DVL and IMU readings; only those of age 0 update
+        (``None``: all). Readings beyond :attr:`gate` are rejected. Returns ``(mean, cov,
         filtered)``, ``filtered`` the readings the estimate predicts (eq. 2 on it). The
         transform calls it each step; :class:`dockingrl.OnboardPolicy` too."""
         action = self._applied_action(action).to(z.dtype)
@@ -401,6 +427,8 @@ class EKFTransform(Transform):
             k_v=self.k_v,
             k_w=self.k_w,
             diagonal=True,
+            arrived=arrived_readings(sensor_age),
+            gate=self.gate,
         )
 
     def initial_estimate(self, observation, current):
@@ -428,6 +456,7 @@ class EKFTransform(Transform):
             next_tensordict.get(self.observation_key),
             next_tensordict.get(self.current_key),
             age.squeeze(-1),
+            sensor_age=next_tensordict.get(self.sensor_age_key, None),
         )
         next_tensordict.set(self.mean_key, mean)
         next_tensordict.set(self.cov_key, cov)
