@@ -273,9 +273,10 @@ class DockingConfig:
     #: another vehicle, +-30 %.
     pid_gain_scale: tuple[float, float] = (1.0, 1.0)
     #: (low, high) of a factor drawn per episode on the time constant of the low-level
-    #: velocity loops (0.4 s, eq. 24's k = 2.5 1/s): the PID is retuned so that its linear
-    #: closed loop is the nominal one slowed down by the factor (``kp + K_dl`` / s, ``ki`` /
-    #: s^2, ``kd`` / s; ``kp`` floored at 0). A sluggish vehicle is up to 3x slower.
+    #: velocity loops (0.4 s, eq. 24's k = 2.5 1/s): the PID is retuned so that the poles of
+    #: its linear closed loop are the nominal ones divided by the factor (``kp + K_dl`` / s,
+    #: ``ki`` / s^2, ``kd`` / s; ``kp`` floored at 0); the 63 % rise time grows by about the
+    #: factor (3.4x at 3). A sluggish vehicle is up to 3x slower.
     response_time_scale: tuple[float, float] = (1.0, 1.0)
     #: fraction of ``max_thrust`` lost in reverse surge: a propeller designed for forward
     #: thrust gives 30-50 % less backwards.
