@@ -388,3 +388,47 @@ def test_filter_skips_held_readings_and_beats_one_that_takes_them_as_new():
         error = (td["ekf_mean"][..., :2] - td["true_state"][..., :2]).norm(dim=-1)
         errors.append(error[:, 50:].mean())
     assert errors[0] < 0.9 * errors[1], errors
+
+
+# -- the stress ladder -------------------------------------------------------------------------
+def test_stress_levels_are_valid_configs_and_l5_holds_every_option():
+    from dockingrl.stress import LEVELS, level_config
+
+    assert level_config("L0") == DockingConfig()
+    harshest = level_config("L5")
+    assert harshest.sensor_timing and harshest.current_model and harshest.dynamics_mismatch
+    for name in LEVELS:
+        assert level_config(name).realistic == (name != "L0")
+    with pytest.raises(ValueError, match=r"^unknown stress level 'L9'; valid: L0, L1, L2"):
+        level_config("L9")
+
+
+def test_stress_command_writes_table_json_and_plot(tmp_path, capsys):
+    import argparse
+    import json
+
+    from dockingrl.agents.managed_surge import ManagedSurgePolicy
+    from dockingrl.evaluation import evaluate
+    from dockingrl.stress import add_stress_command
+
+    parser = argparse.ArgumentParser()
+    add_stress_command(parser.add_subparsers())
+    args = parser.parse_args(
+        ["stress", "--episodes", "3", "--levels", "L0,L5", "--out", str(tmp_path)]
+    )
+    assert args.func(args) == 0
+    result = json.loads((tmp_path / "stress.json").read_text())
+    assert [row["name"] for row in result["levels"]] == ["L0", "L5"]
+    assert (tmp_path / "stress.png").stat().st_size > 0
+    table = (tmp_path / "stress.md").read_text()
+    assert "| L5 | sensors, current and dynamics |" in table
+    assert "| L0 |" in capsys.readouterr().out
+    nominal = evaluate(ManagedSurgePolicy(), "noise", 3, seed=0)
+    row = result["levels"][0]
+    assert row["success_rate"] == nominal["success_rate"]
+    assert row["failures"] == nominal["failures"]
+    assert (
+        sum(result["levels"][1]["failures"].values())
+        + round(result["levels"][1]["success_rate"] * 3 / 100)
+        == 3
+    )
