@@ -374,12 +374,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     from dockingrl.filter_cli import add_filter_commands
     from dockingrl.grid_cli import add_grid_commands
+    from dockingrl.stress import add_stress_command
     from dockingrl.train_cli import add_training_commands
     from dockingrl.upgrade_cli import add_upgrade_command
 
     add_training_commands(sub)
     add_grid_commands(sub)
     add_filter_commands(sub)
+    add_stress_command(sub)
     add_upgrade_command(sub)
     for command in sub.choices.values():  # --debug also after the command's name
         command.add_argument(

@@ -97,7 +97,9 @@ def run_episodes(
     mode = ExplorationType.RANDOM if stochastic else ExplorationType.DETERMINISTIC
     with torch.no_grad(), set_exploration_type(mode):
         td = env.reset()
-        out["ocean_current"] = td["ocean_current"].clone()
+        # the water's current (what the vehicle believes of it is ``ocean_current`` when the
+        # realism options make them differ)
+        out["ocean_current"] = td.get("true_ocean_current", td["ocean_current"]).clone()
         out["start"] = td["true_state"][:, :3].clone()
         out["end"] = out["start"].clone()
         poses = [td["true_state"][:, :3].clone()]

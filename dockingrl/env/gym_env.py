@@ -111,6 +111,11 @@ class DockingGymEnv(gymnasium.Env):
             simulator = DockingEnv(1, config=config, seed=0)
         elif not isinstance(simulator, DockingEnv) or simulator.num_envs != 1:
             raise ValueError(f"simulator must be a DockingEnv of 1 env, got {simulator!r}")
+        if simulator.config.realistic:
+            raise ValueError(
+                "the Gymnasium env steps the paper's task only; for the realism options of "
+                "DockingConfig (docs/realism.md) use dockingrl.make_env"
+            )
         self._env = simulator
         self.config = simulator.config
         self.action_space = action_space(self.config)
