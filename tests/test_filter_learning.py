@@ -16,6 +16,7 @@ from dockingrl.filter_learning import (
 )
 from dockingrl.scenarios import make_filter
 from dockingrl.transforms import EKFTransform, MeasurementNoise, ProcessNoise
+from dockingrl.upgrade_cli import upgrade_file
 
 
 @pytest.fixture(scope="module")
@@ -509,5 +510,6 @@ def test_range_noise_from_round_trips_and_older_files_read_as_measured(tmp_path)
     payload["format"] = "dockingrl.filter_params/3"
     del payload["range_noise_from"]
     torch.save(payload, path)
+    upgrade_file(path)
     ekf = make_filter(DockingConfig(), range_noise_from="estimate").load_filter_params(path)
     assert ekf.range_noise_from == "measurement"

@@ -12,6 +12,7 @@ from dockingrl.agents.saving import load_policy
 from dockingrl.cli import main as cli_main
 from dockingrl.env import DockingConfig
 from dockingrl.evaluation import evaluate
+from dockingrl.io import save_artifact
 from dockingrl.training import Trainer, read_curves, train
 
 
@@ -345,7 +346,7 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys, short_episodes):
             cli_main(["train", "--resume", run, *extra])
     with pytest.raises(SystemExit, match="no run"):
         cli_main(["train", "--resume", str(tmp_path / "nothing")])
-    with pytest.raises(SystemExit, match="--algo is required"):
+    with pytest.raises(SystemExit, match="--algo or --recipe is required"):
         cli_main(["train", "--total-steps", "256"])
 
 
@@ -524,9 +525,9 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(
     path = (
         run / "checkpoints" / json.loads((run / "checkpoints" / "latest.json").read_text())["path"]
     )
-    state = torch.load(path / "state.pt", weights_only=False)
+    state = torch.load(path / "state.pt", weights_only=True)
     del state["candidates"]
-    torch.save(state, path / "state.pt")
+    save_artifact(path / "state.pt", state)
     trainer = Trainer(cfg, run, progress=False)
     assert trainer.load_checkpoint() and len(trainer.candidates) == 1
     assert trainer.candidates[0]["frames"] == state["best"]["frames"] == 512
@@ -642,9 +643,8 @@ def test_privileged_critic_run_checkpoints_its_buffer_and_saves_an_observation_o
     run = tmp_path / "sac_compound"
     # a resumed run reloads the replay buffer with the privileged entries of both steps
     saved = json.loads((run / "config.json").read_text())
-    saved.pop("algo")
     saved["hidden"] = tuple(saved["hidden"])
-    trainer = Trainer(make_config("sac", "paper", **saved), run, progress=False)
+    trainer = Trainer(SACConfig(**saved), run, progress=False)
     assert trainer.load_checkpoint()
     stored = trainer.agent.replay_buffer.sample()
     for key in ("true_state", "ocean_current", ("next", "true_state"), ("next", "ocean_current")):

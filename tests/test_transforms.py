@@ -8,6 +8,7 @@ from dockingrl import SCENARIOS, make_env
 from dockingrl.env import DockingConfig, DockingEnv, observation_from_state, wrap_angle
 from dockingrl.scenarios import OBSERVATION_PARTS, observation_layout
 from dockingrl.transforms import CompoundObservation, EKFTransform
+from dockingrl.upgrade_cli import upgrade_file
 
 
 def true_observation(td):
@@ -271,6 +272,11 @@ def test_version_1_filter_files_load_to_the_same_q(tmp_path):
         "measurement_noise": {"log_std": EKFTransform().measurement_noise.log_std.detach()},
     }
     torch.save(payload, tmp_path / "v1.pt")
+    with pytest.raises(
+        ValueError, match="older format dockingrl.filter_params/1.*dockingrl upgrade"
+    ):
+        EKFTransform().load_filter_params(tmp_path / "v1.pt")
+    upgrade_file(tmp_path / "v1.pt")
     ekf = EKFTransform().load_filter_params(tmp_path / "v1.pt")
     expected = L @ L.T + 1e-10 * torch.eye(5)
     torch.testing.assert_close(ekf.process_noise(), expected, rtol=1e-5, atol=1e-9)
