@@ -153,20 +153,33 @@ def plot_stress(result: dict, path: str | Path, *, title: str = "", footer: str 
 
 
 def write_stress(result: dict, out: str | Path, name: str = "policy") -> list[Path]:
-    """``stress.json``, ``stress.md`` and ``stress.png`` in the folder ``out``."""
+    """``stress.json``, ``stress.md`` and ``stress.png`` in the folder ``out``; the table and
+    the figure name the result's ``command``, ``machine`` and ``wall_clock_s`` if it has them."""
     from dockingrl.io import atomic_write, write_json
 
     out = Path(out)
     table = stress_table(result, name)
+    footer = "  |  ".join(
+        text
+        for text in (
+            result.get("command", ""),
+            result.get("machine", ""),
+            f"{result['wall_clock_s']:.0f} s" if "wall_clock_s" in result else "",
+        )
+        if text
+    )
+    if footer:
+        table += f"\n{footer}\n"
     return [
         write_json(out / "stress.json", result),
         atomic_write(out / "stress.md", lambda tmp: tmp.write_text(table)),
-        plot_stress(result, out / "stress.png", title=f"{name}: stress ladder"),
+        plot_stress(result, out / "stress.png", title=f"{name}: stress ladder", footer=footer),
     ]
 
 
 def cmd_stress(args: argparse.Namespace) -> int:
-    from dockingrl.cli import load_policy
+    from dockingrl.cli import command_line, load_policy
+    from dockingrl.evaluation import describe_machine
 
     torch.set_num_threads(args.threads)
     policy, name, trained_scenario, options, trained = load_policy(
@@ -194,11 +207,16 @@ def cmd_stress(args: argparse.Namespace) -> int:
         device=args.device,
         **options,
     )
-    result.update(policy=args.policy)
+    wall = time.perf_counter() - start
+    result.update(
+        policy=args.policy,
+        command=command_line(),
+        machine=describe_machine(args.device),
+        wall_clock_s=wall,
+    )
     print(stress_table(result, name), end="")
     if args.out:
         write_stress(result, args.out, name)
-    wall = time.perf_counter() - start
     print(f"wall-clock {wall:.1f} s" + (f"; results in {args.out}/" if args.out else ""))
     return 0
 
