@@ -193,3 +193,48 @@ def test_a_run_killed_before_its_first_checkpoint_can_be_started_again(tmp_path)
         train(cfg, progress=False)
     result = train(None, resume=tmp_path / "run", progress=False)
     assert result["summary"]["frames"] == 200
+
+
+class _Recorder:
+    """A logger backend that records what it is sent, as wandb's would hold it."""
+
+    def __init__(self):
+        self.rows = []
+
+    def log_scalar(self, key, value, step):
+        self.rows.append((step, key, value))
+
+
+def test_a_backend_that_cannot_be_rewritten_is_sent_each_row_once(tmp_path):
+    """wandb keeps what it was sent: the rows sent before a kill are not sent again, the rows
+    logged after the last checkpoint are sent only by the resumed run."""
+    from dockingrl.training import RunLogger, Trainer
+
+    def logger(recorder):
+        log = RunLogger({}, "none", tmp_path, "run", buffered=True)
+        log.backend, log.kind = recorder, "wandb"
+        return log
+
+    first = _Recorder()
+    log = logger(first)
+    log.sync()
+    log.log({"a": 1.0, "b": 2.0}, 100)
+    log.log({"a": 3.0}, 200)
+    log.flush()  # the checkpoint at 200
+    log.log({"a": 5.0}, 300)  # then the kill: 300 is trained again
+    assert first.rows == [(100, "a", 1.0), (100, "b", 2.0), (200, "a", 3.0)]
+
+    trainer = Trainer.__new__(Trainer)
+    trainer.run_dir, trainer.cfg = tmp_path, type("Cfg", (), {"total_steps": 1000})()
+    trainer._drop_curves_after(200)
+    second = _Recorder()
+    log = logger(second)
+    log.sync()
+    assert second.rows == []
+    log.log({"a": 6.0}, 300)
+    log.finish({})
+    assert second.rows == [(300, "a", 6.0)]
+    sent = first.rows + second.rows
+    with (tmp_path / "curves.csv").open() as f:
+        logged = [(int(r["step"]), r["key"], float(r["value"])) for r in csv.DictReader(f)]
+    assert sent == logged
