@@ -27,7 +27,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from dockingrl.agents.algorithms import make_agent
+from dockingrl.agents import make_agent
 from dockingrl.agents.config import make_config
 from dockingrl.evaluation import describe_machine
 from dockingrl.scenarios import make_env
@@ -247,24 +247,24 @@ def paired_rates(ours, plain, seconds: float, rounds: int) -> tuple[float, float
 
 
 def write_paths(algo: str, seconds: float, rounds: int) -> None:
-    """The agents' modules (``algorithms._WritesTensors``: outputs set directly) against the
+    """The agents' modules (``networks._WritesTensors``: outputs set directly) against the
     same update through ``TensorDictModule``'s own write path (``TensorDict.from_any`` on each
     output), in alternating rounds."""
     from tensordict.nn import TensorDictModule
 
-    from dockingrl.agents import algorithms
+    from dockingrl.agents import networks
 
     writes = {
-        "direct": algorithms._WritesTensors.__dict__["_write_to_tensordict"],
+        "direct": networks._WritesTensors.__dict__["_write_to_tensordict"],
         "from_any": TensorDictModule._write_to_tensordict,
     }
 
     def variant(name):
-        algorithms._WritesTensors._write_to_tensordict = writes[name]
+        networks._WritesTensors._write_to_tensordict = writes[name]
         update = torchrl_update(algo)
 
         def step():
-            algorithms._WritesTensors._write_to_tensordict = writes[name]
+            networks._WritesTensors._write_to_tensordict = writes[name]
             update()
 
         return step
@@ -272,7 +272,7 @@ def write_paths(algo: str, seconds: float, rounds: int) -> None:
     try:
         fast, slow, ratio = paired_rates(variant("direct"), variant("from_any"), seconds, rounds)
     finally:
-        algorithms._WritesTensors._write_to_tensordict = writes["direct"]
+        networks._WritesTensors._write_to_tensordict = writes["direct"]
     print(
         f"{algo}: outputs set directly {fast:,.1f} updates/s, through from_any {slow:,.1f}; "
         f"time ratio direct / from_any {ratio:.3f} (median over {rounds} alternating rounds)"

@@ -19,7 +19,7 @@ from torchrl.collectors import Collector
 from torchrl.envs import RewardSum
 from torchrl.envs.utils import ExplorationType
 
-from dockingrl.agents.algorithms import Agent, make_agent
+from dockingrl.agents import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
 from dockingrl.agents.saving import pipeline_options, save_policy
 from dockingrl.env import DockingConfig

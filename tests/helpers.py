@@ -6,7 +6,7 @@ from pathlib import Path
 import torch
 
 from dockingrl import make_env
-from dockingrl.agents.algorithms import build_actor
+from dockingrl.agents import build_actor
 from dockingrl.agents.config import make_config
 
 #: the repository's root, whatever folder pytest runs in

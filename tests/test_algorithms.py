@@ -11,18 +11,18 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import TanhNormal, ValueOperator
 from torchrl.objectives.value import TD0Estimator
 
-from dockingrl.agents import algorithms
-from dockingrl.agents.algorithms import (
+from dockingrl.agents import (
     PRIVILEGED_KEYS,
     TRANSITION_KEYS,
-    _WritesTensors,
     make_agent,
     n_step_transitions,
+    networks,
     privileged_features,
     transition_keys,
 )
 from dockingrl.agents.config import make_config
 from dockingrl.agents.distributions import BoundedTanhNormal
+from dockingrl.agents.networks import _WritesTensors
 from dockingrl.agents.saving import load_policy
 from dockingrl.scenarios import make_env
 from dockingrl.training import Trainer, train
@@ -291,7 +291,7 @@ def test_privileged_critic_reads_true_state_and_current_the_policy_does_not():
 @pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
 def test_agents_modules_write_tensor_outputs_directly_with_torchrls_results(algo, monkeypatch):
     """The actor and critic modules set their tensor outputs without ``TensorDict.from_any``
-    (see ``algorithms._WritesTensors``) and compute exactly what ``TensorDictModule`` does."""
+    (see ``networks._WritesTensors``) and compute exactly what ``TensorDictModule`` does."""
     env = make_env("compound", 4, seed=0)
     spec = env.action_spec[0]
     sizes = (
@@ -397,7 +397,7 @@ def test_agents_learn_the_same_with_torchrls_tanh_normal(algo, monkeypatch):
     cfg = make_config(algo, "paper", hidden=(32, 16), **sizes)
 
     def run(distribution):
-        monkeypatch.setattr(algorithms, "BoundedTanhNormal", distribution)
+        monkeypatch.setattr(networks, "BoundedTanhNormal", distribution)
         env = make_env("compound", 4, seed=0)
         torch.manual_seed(0)
         agent = make_agent(cfg, 12, env.action_spec[0], 30.0)

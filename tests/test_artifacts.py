@@ -18,13 +18,13 @@ from tensordict import TensorDict
 from dockingrl.agents.config import make_config
 from dockingrl.agents.saving import check_layout, load_policy, read_policy, save_policy
 from dockingrl.checkpoint import latest_checkpoint, read_state
+from dockingrl.cli.upgrade import add_upgrade_command
 from dockingrl.env import DockingConfig
 from dockingrl.io import ArtifactError, atomic_write, read_artifact, save_artifact
 from dockingrl.scenarios import make_env
 from dockingrl.training import Trainer
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.params import read_filter_params
-from dockingrl.upgrade_cli import add_upgrade_command
 
 TINY_PPO = {"num_envs": 2, "steps_per_env": 8, "minibatch_size": 8, "hidden": (8, 8)}
 TINY_SAC = {
@@ -52,7 +52,7 @@ def config(algo="ppo", scenario="compound", tmp_path=".", **extra):
 
 def saved_policy(path, scenario="compound", **extra):
     """A freshly initialised actor of ``scenario`` saved at ``path``; returns the env too."""
-    from dockingrl.agents.algorithms import build_actor
+    from dockingrl.agents import build_actor
 
     cfg = config("ppo", scenario, **extra)
     env = make_env(scenario, 1, seed=0)
@@ -497,7 +497,7 @@ def test_latest_json_cannot_point_out_of_the_checkpoints_folder(tmp_path):
 def test_a_policy_carries_its_learned_filter_whole(tmp_path):
     learned_filter(tmp_path / "f.pt")
     payload = read_filter_params(tmp_path / "f.pt")
-    from dockingrl.agents.algorithms import build_actor
+    from dockingrl.agents import build_actor
 
     cfg = config("ppo", "filtered")
     env = make_env("filtered", 1, seed=0, config=DockingConfig(), filter_params=payload)

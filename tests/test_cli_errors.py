@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from dockingrl import make_env
-from dockingrl.agents.algorithms import build_actor
+from dockingrl.agents import build_actor
 from dockingrl.agents.config import make_config
 from dockingrl.agents.saving import save_policy
 from dockingrl.cli import main

@@ -10,7 +10,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from dockingrl import make_env
-from dockingrl.agents.algorithms import mirror_transitions
+from dockingrl.agents import mirror_transitions
 from dockingrl.agents.config import make_config
 from dockingrl.env import DockingConfig
 from dockingrl.scenarios import (
@@ -122,7 +122,7 @@ def test_mirror_signs_follow_the_observation_layout():
 
 
 def test_mirror_augment_stores_each_transition_twice(tmp_path):
-    from dockingrl.agents.algorithms import make_agent
+    from dockingrl.agents import make_agent
 
     env = make_env("compound", 4, seed=0, observe_command=True)
     cfg = make_config(
@@ -193,7 +193,7 @@ def test_mirror_augment_refuses_a_filter_that_breaks_the_symmetry(tmp_path):
 def test_mirror_symmetric_networks_are_exactly_equivariant(algo):
     """With ``mirror_symmetric`` the actor commands the mirrored command for the mirrored
     observation and the critic values both alike, at any weights; without it they do not."""
-    from dockingrl.agents.algorithms import make_agent
+    from dockingrl.agents import make_agent
 
     options = {"observe_current": True, "observe_command": True}
     env = make_env("compound", 1, seed=0, **options)
@@ -289,7 +289,7 @@ def test_a_trained_mirror_symmetric_policy_loads_equivariant(tmp_path, short_epi
 def test_mirrored_policy(tmp_path):
     """Mirroring twice gives the policy back; a plain actor's mirror is another policy; a
     mirror-symmetric actor is its own mirror; ``dockingrl eval --mirrored`` needs an agent."""
-    from dockingrl.agents.algorithms import MirroredPolicy, build_actor
+    from dockingrl.agents import MirroredPolicy, build_actor
     from dockingrl.cli import main as cli_main
 
     env = make_env("compound", 1, seed=0)

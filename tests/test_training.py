@@ -377,7 +377,7 @@ def collect_once(env, policy, frames: int):
 def test_ppo_reward_scale_scales_the_learning_signal_not_the_data(tmp_path):
     """``reward_scale`` multiplies the rewards GAE and the critic see; the collected data (and
     so the logged episode rewards) keep the paper's scale."""
-    from dockingrl.agents.algorithms import make_agent
+    from dockingrl.agents import make_agent
     from dockingrl.scenarios import make_env
 
     def critic_loss(scale):
@@ -406,7 +406,7 @@ def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path, short_
 def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
     """``lr_schedule="linear"`` sets Adam's rate to ``lr (1 - progress)`` before each update;
     ``constant`` keeps ``lr``; an unknown schedule is refused."""
-    from dockingrl.agents.algorithms import make_agent
+    from dockingrl.agents import make_agent
     from dockingrl.scenarios import make_env
 
     env = make_env("noise", 4, seed=1)
@@ -577,7 +577,7 @@ def test_ppo_stable_baselines3_style_policy_options(tmp_path, short_episodes):
     activations; the saved policy rebuilds them; an unknown activation is refused."""
     from tensordict import TensorDict
 
-    from dockingrl.agents.algorithms import build_actor, make_agent
+    from dockingrl.agents import build_actor, make_agent
     from dockingrl.scenarios import make_env
 
     env = make_env("compound", 2, seed=0)

@@ -67,7 +67,7 @@ def test_observation_follows_its_layout(scenario, current, command):
 
 
 def test_observation_scale_leaves_the_current_alone():
-    from dockingrl.agents.algorithms import observation_scale
+    from dockingrl.agents import observation_scale
 
     scale = observation_scale(14, 30.0, True)
     expected = torch.ones(14)

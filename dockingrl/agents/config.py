@@ -166,7 +166,7 @@ class TrainConfig:
     mirror_symmetric: str = _doc(
         "mirror-symmetric networks (not in the paper): 'actor' makes the actor command the "
         "mirrored command in the mirrored situation (y -> -y), exactly, by averaging it over "
-        "the observation and its mirror (dockingrl.agents.algorithms.MirrorSymmetric); 'all' "
+        "the observation and its mirror (dockingrl.agents.mirror.MirrorSymmetric); 'all' "
         "the critics too (they value a transition and its mirror alike). A SAC update costs about "
         "1.3x ('actor') and 1.8x ('all') the plain one on a 2-core CPU; 'none' neither",
         default="none",

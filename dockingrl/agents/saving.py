@@ -152,8 +152,8 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
 
 def _rebuild(path, payload: dict) -> torch.nn.Module:
     """The actor of a checked policy payload, its weights loaded."""
-    from dockingrl.agents.algorithms import build_actor
     from dockingrl.agents.config import CONFIGS
+    from dockingrl.agents.networks import build_actor
 
     config = dict(payload["config"])
     try:

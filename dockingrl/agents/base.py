@@ -1,0 +1,119 @@
+"""The :class:`Agent` every algorithm builds: its modules, its update rule and its checkpoint
+state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.data import Bounded, TensorDictReplayBuffer
+from torchrl.objectives import SoftUpdate
+from torchrl.objectives.value import GAE
+
+from dockingrl.agents.averaging import ActorAverage
+from dockingrl.agents.config import TrainConfig
+
+
+@dataclass
+class Agent:
+    """An algorithm's modules and its update rule: the exploration policy used while
+    collecting, the deterministic ``actor`` used in evaluation, and :meth:`learn`, which turns
+    collected data into gradient updates (the ``update()`` closure of TorchRL's
+    sota-implementations). Each algorithm is a subclass with its own :meth:`build`."""
+
+    config: TrainConfig
+    actor: nn.Module  # deterministic under ExplorationType.DETERMINISTIC
+    exploration_policy: nn.Module
+    loss: nn.Module
+    optimizers: dict[str, torch.optim.Optimizer]
+    target_updater: SoftUpdate | None = None
+    replay_buffer: TensorDictReplayBuffer | None = None
+    advantage: GAE | None = None
+    updates: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+    #: the exponential moving average of ``actor``'s weights (``actor_average > 0``)
+    average: ActorAverage | None = None
+
+    @classmethod
+    def build(
+        cls,
+        cfg: TrainConfig,
+        actor: nn.Module,
+        action_spec: Bounded,
+        obs_dim: int,
+        scale: torch.Tensor,
+        max_dist: float,
+        device: torch.device | str,
+    ) -> Agent:
+        """The agent of ``cfg`` around ``actor`` (:func:`~dockingrl.agents.networks.build_actor`)
+        for observations of ``obs_dim`` numbers scaled by ``scale``."""
+        raise NotImplementedError(f"{cls.__name__} has no build")
+
+    @property
+    def averaged(self) -> nn.Module | None:
+        """The averaged actor (``actor_average > 0``), else ``None``."""
+        return None if self.average is None else self.average.module
+
+    @property
+    def policy(self) -> nn.Module:
+        """The actor to evaluate and save: the averaged one if there is one."""
+        return self.actor if self.average is None else self.average.module
+
+    def _average_actor(self) -> None:
+        """One step of the averaged actor after an actor step (nothing without one)."""
+        if self.average is not None:
+            self.average.step()
+
+    def learn(
+        self, data: TensorDictBase, num_updates: int = 0, progress: float = 0.0
+    ) -> dict[str, float]:
+        """Turn ``data`` (``(num_envs, T)``) into updates; returns mean losses (``losses/...``)."""
+        raise NotImplementedError(f"{type(self).__name__} has no learn")
+
+    def _gradients(self, name: str, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Forward and backward of one loss (``name``: the ``_grad_<name>`` method); returns
+        the detached logged values. With ``compile_update`` each of these runs through
+        ``torch.compile`` (built on first use)."""
+        compiled = self.extra.setdefault("compiled", {})
+        if name not in compiled:
+            fn = getattr(self, f"_grad_{name}")
+            compiled[name] = torch.compile(fn) if self.config.compile_update else fn
+        return compiled[name](batch)
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        state = {
+            "loss": self.loss.state_dict(),
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "updates": self.updates,
+        }
+        if "generator" in self.extra:
+            state["generator"] = self.extra["generator"].get_state()
+        if self.average is not None:
+            state["averaged"] = self.average.module.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        self.loss.load_state_dict(state["loss"])
+        for k, o in self.optimizers.items():
+            o.load_state_dict(state["optimizers"][k])
+        self.updates = state["updates"]
+        if "generator" in state:
+            self.extra["generator"].set_state(state["generator"])
+        if self.average is not None:
+            if "averaged" not in state:
+                raise ValueError("the agent averages its actor; the state holds no averaged actor")
+            self.average.module.load_state_dict(state["averaged"])
+
+
+def scalar(value: torch.Tensor) -> float:
+    """``value`` as a Python float, detached."""
+    return float(value.detach())
+
+
+def adam(params, lr: float) -> torch.optim.Adam:
+    """An Adam optimiser over ``params``."""
+    return torch.optim.Adam(list(params), lr=lr)

@@ -1,0 +1,134 @@
+"""What SAC and TD3 share: the replay buffer and what it stores (mirrored and n-step
+transitions included), the twin Q-networks' wiring, their optimisers and target updater, and
+the loop of updates after each collection."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers import RandomSampler
+from torchrl.objectives import LossModule, SoftUpdate
+
+from dockingrl.agents.base import Agent, adam, scalar
+from dockingrl.agents.config import OffPolicyConfig, TrainConfig
+from dockingrl.agents.mirror import config_mirror_signs, mirror_transitions
+from dockingrl.agents.networks import PRIVILEGED_KEYS, make_critic
+from dockingrl.agents.nstep import NStepWindow
+
+#: what an off-policy replay buffer stores of each transition
+TRANSITION_KEYS = (
+    "observation",
+    "action",
+    ("next", "observation"),
+    ("next", "reward"),
+    ("next", "done"),
+    ("next", "terminated"),
+    ("next", "truncated"),
+)
+
+
+def transition_keys(cfg: TrainConfig) -> tuple:
+    """What the replay buffer of ``cfg`` stores of each transition: ``TRANSITION_KEYS``, and
+    ``PRIVILEGED_KEYS`` of both steps for a privileged critic."""
+    if not getattr(cfg, "privileged_critic", False):
+        return TRANSITION_KEYS
+    return TRANSITION_KEYS + PRIVILEGED_KEYS + tuple(("next", k) for k in PRIVILEGED_KEYS)
+
+
+def replay_buffer(cfg: OffPolicyConfig, device) -> TensorDictReplayBuffer:
+    """A uniformly sampled replay buffer of ``cfg.buffer_size`` transitions on ``device``."""
+    return TensorDictReplayBuffer(
+        storage=LazyTensorStorage(cfg.buffer_size, device=device),
+        sampler=RandomSampler(),
+        batch_size=cfg.batch_size,
+    )
+
+
+@dataclass
+class OffPolicyAgent(Agent):
+    """An agent that stores what it collects in a replay buffer and samples its updates from
+    it. A subclass gives its loss (:meth:`make_loss`), its exploration policy and
+    :meth:`_update`, one gradient step on a sampled batch."""
+
+    #: the n-step window over successive collections (``n_steps``)
+    window: NStepWindow | None = None
+
+    def __post_init__(self) -> None:
+        if self.window is None:
+            self.window = NStepWindow(self.config.n_steps, self.config.gamma)
+
+    @classmethod
+    def build(cls, cfg, actor, action_spec, obs_dim, scale, max_dist, device) -> Agent:
+        act_dim = action_spec.shape[-1]
+        qvalue = make_critic(cfg, obs_dim, act_dim, scale, max_dist).to(device)
+        exploration = cls.make_exploration(cfg, actor, action_spec, device)
+        loss = cls.make_loss(cfg, actor, qvalue, action_spec)
+        loss.make_value_estimator(gamma=cfg.gamma)
+        optimizers = {
+            "actor": adam(loss.actor_network_params.flatten_keys().values(), cfg.lr),
+            "critic": adam(loss.qvalue_network_params.flatten_keys().values(), cfg.lr),
+            **cls.more_optimizers(cfg, loss),
+        }
+        return cls(
+            cfg,
+            actor,
+            exploration,
+            loss,
+            optimizers,
+            SoftUpdate(loss, tau=cfg.tau),
+            replay_buffer(cfg, device),
+        )
+
+    @classmethod
+    def make_exploration(
+        cls, cfg: OffPolicyConfig, actor: nn.Module, action_spec: Bounded, device
+    ) -> nn.Module:
+        """The policy that collects: the actor itself unless a subclass adds noise."""
+        return actor
+
+    @classmethod
+    def make_loss(
+        cls,
+        cfg: OffPolicyConfig,
+        actor: nn.Module,
+        qvalue: TensorDictModule,
+        action_spec: Bounded,
+    ) -> LossModule:
+        """The TorchRL loss over ``actor`` and two copies of ``qvalue``."""
+        raise NotImplementedError(f"{cls.__name__} has no loss")
+
+    @classmethod
+    def more_optimizers(cls, cfg: OffPolicyConfig, loss: LossModule) -> dict:
+        """Optimisers besides the actor's and the critics' (none unless a subclass adds)."""
+        return {}
+
+    def learn(
+        self, data: TensorDictBase, num_updates: int = 0, progress: float = 0.0
+    ) -> dict[str, float]:
+        """Store ``data`` (``(num_envs, T)``; mirrored too with ``mirror_augment``) and run
+        ``num_updates`` updates. Returns mean losses (``losses/...``)."""
+        transitions = self.window(data.select(*transition_keys(self.config))).reshape(-1)
+        self.replay_buffer.extend(transitions)
+        if self.config.mirror_augment:
+            signs = config_mirror_signs(self.config)
+            self.replay_buffer.extend(mirror_transitions(transitions, signs))
+        logs: dict[str, list[float]] = {}
+        for _ in range(num_updates):
+            for key, value in self._off_policy_update().items():
+                logs.setdefault(key, []).append(value)
+        return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _off_policy_update(self) -> dict[str, float]:
+        """One update on a batch sampled from the replay buffer."""
+        batch = self.replay_buffer.sample()
+        self.updates += 1
+        return {k: scalar(v) for k, v in self._update(batch).items()}
+
+    def _update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """The gradient steps of one update on ``batch``; returns the logged values."""
+        raise NotImplementedError(f"{type(self).__name__} has no update")

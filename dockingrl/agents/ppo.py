@@ -1,0 +1,101 @@
+"""PPO: TorchRL's ``ClipPPOLoss`` with ``GAE`` over a Tanh-Normal actor and a value network,
+``epochs`` passes of shuffled minibatches over each collection, an optionally linear learning
+rate."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from dockingrl.agents.base import Agent, adam, scalar
+from dockingrl.agents.config import PPOConfig
+from dockingrl.agents.mirror import mirror_observation_signs, symmetric
+from dockingrl.agents.networks import QValueModule, mlp
+
+
+class PPOAgent(Agent):
+    """Proximal policy optimisation with the clipped objective."""
+
+    @classmethod
+    def build(cls, cfg: PPOConfig, actor, action_spec, obs_dim, scale, max_dist, device) -> Agent:
+        value_net = mlp(
+            obs_dim,
+            1,
+            cfg.hidden,
+            scale,
+            activation=cfg.activation,
+            orthogonal_gain=1.0 if cfg.orthogonal_init else None,
+        )
+        value_net = symmetric(value_net, mirror_observation_signs(cfg, obs_dim, "critic"), (1.0,))
+        critic = QValueModule(value_net, in_keys=["observation"]).to(device)
+        advantage = GAE(
+            gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False
+        )
+        loss = ClipPPOLoss(
+            actor_network=actor,
+            critic_network=critic,
+            clip_epsilon=cfg.clip,
+            entropy_bonus=cfg.entropy_coef > 0,
+            entropy_coeff=cfg.entropy_coef if cfg.entropy_coef > 0 else None,
+            critic_coeff=cfg.value_coef,
+            loss_critic_type="l2",
+            normalize_advantage=cfg.normalize_advantage,
+        )
+        generator = torch.Generator().manual_seed(cfg.seed)
+        return cls(
+            cfg,
+            actor,
+            actor,
+            loss,
+            {"all": adam(loss.parameters(), cfg.lr)},
+            advantage=advantage,
+            extra={"generator": generator},
+        )
+
+    def learn(
+        self, data: TensorDictBase, num_updates: int = 0, progress: float = 0.0
+    ) -> dict[str, float]:
+        """PPO's epochs over ``data`` (``(num_envs, T)``; ``num_updates`` is not used);
+        ``progress`` (the fraction of ``total_steps`` done before ``data``) sets the learning
+        rate of ``lr_schedule="linear"``. Returns mean losses (``losses/...``)."""
+        cfg, optim = self.config, self.optimizers["all"]
+        lr = cfg.lr
+        if cfg.lr_schedule == "linear":
+            lr = cfg.lr * (1.0 - min(max(progress, 0.0), 1.0))
+        for group in optim.param_groups:
+            group["lr"] = lr
+        params = list(self.loss.parameters())
+        frames = data.numel()
+        if cfg.reward_scale != 1.0:
+            data = data.clone(recurse=False)
+            data["next"] = data["next"].clone(recurse=False)
+            data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
+        logs: dict[str, list[float]] = {}
+        for _ in range(cfg.epochs):
+            with torch.no_grad():
+                self.advantage(data)
+            flat = data.reshape(-1)
+            order = torch.randperm(frames, generator=self.extra["generator"])
+            for start in range(0, frames, cfg.minibatch_size):
+                batch = flat[order[start : start + cfg.minibatch_size]]
+                optim.zero_grad(set_to_none=True)
+                out = self._gradients("ppo", batch)
+                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+                optim.step()
+                self._average_actor()
+                self.updates += 1
+                for key, value in out.items():
+                    logs.setdefault(key, []).append(scalar(value))
+        logs["lr"] = [lr]
+        return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _grad_ppo(self, batch):
+        out = self.loss(batch)
+        total = out["loss_objective"] + out["loss_critic"]
+        if "loss_entropy" in out.keys():
+            total = total + out["loss_entropy"]
+        total.backward()
+        keys = ("loss_objective", "loss_critic", "clip_fraction", "kl_approx")
+        return {k: out[k].detach() for k in keys if k in out.keys()}

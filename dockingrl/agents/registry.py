@@ -1,0 +1,42 @@
+"""``make_agent``: the agent of a config's algorithm. A new algorithm is a module with an
+:class:`~dockingrl.agents.base.Agent` subclass and a row in ``AGENTS``."""
+
+from __future__ import annotations
+
+import torch
+from torchrl.data import Bounded
+
+from dockingrl.agents.averaging import ActorAverage
+from dockingrl.agents.base import Agent
+from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, TrainConfig
+from dockingrl.agents.networks import build_actor, observation_scale
+from dockingrl.agents.ppo import PPOAgent
+from dockingrl.agents.sac import SACAgent
+from dockingrl.agents.td3 import TD3Agent
+
+#: the agent class of each config class
+AGENTS: dict[type[TrainConfig], type[Agent]] = {
+    SACConfig: SACAgent,
+    TD3Config: TD3Agent,
+    PPOConfig: PPOAgent,
+}
+
+
+def make_agent(
+    cfg: TrainConfig,
+    obs_dim: int,
+    action_spec: Bounded,
+    max_dist: float,
+    device: torch.device | str = "cpu",
+) -> Agent:
+    """Build the agent of ``cfg.algo`` for observations of ``obs_dim`` numbers."""
+    agent_class = next((a for c, a in AGENTS.items() if isinstance(cfg, c)), None)
+    if agent_class is None:
+        raise TypeError(f"no agent for {type(cfg).__name__}")
+    action_spec = action_spec.to(device)
+    scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
+    actor = build_actor(cfg, obs_dim, action_spec, max_dist).to(device)
+    average = ActorAverage(actor, cfg.actor_average) if cfg.actor_average > 0 else None
+    agent = agent_class.build(cfg, actor, action_spec, obs_dim, scale, max_dist, device)
+    agent.average = average
+    return agent
