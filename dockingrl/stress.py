@@ -5,11 +5,7 @@ docs/realism.md)."""
 
 from __future__ import annotations
 
-import argparse
-import time
 from pathlib import Path
-
-import torch
 
 from dockingrl.env import DockingConfig
 
@@ -175,72 +171,3 @@ def write_stress(result: dict, out: str | Path, name: str = "policy") -> list[Pa
         atomic_write(out / "stress.md", lambda tmp: tmp.write_text(table)),
         plot_stress(result, out / "stress.png", title=f"{name}: stress ladder", footer=footer),
     ]
-
-
-def cmd_stress(args: argparse.Namespace) -> int:
-    from dockingrl.cli import command_line, load_policy
-    from dockingrl.evaluation import describe_machine
-
-    torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options, trained = load_policy(
-        args.policy, use_filter=args.use_filter, device=args.device
-    )
-    scenario = args.scenario or trained_scenario or "noise"
-    if trained:
-        from dockingrl.agents.saving import training_filter
-        from dockingrl.onboard import check_env_layout
-        from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
-
-        check_env_layout(trained, scenario, options)
-        params = training_filter(trained) if scenario in FILTERED_OBSERVATION_KEYS else None
-        if params is not None:
-            options["filter_params"] = params
-    levels = tuple(args.levels.split(",")) if args.levels else tuple(LEVELS)
-    start = time.perf_counter()
-    result = stress_ladder(
-        policy,
-        scenario,
-        episodes=args.episodes,
-        levels=levels,
-        seed=args.seed,
-        gate=args.gate,
-        device=args.device,
-        **options,
-    )
-    wall = time.perf_counter() - start
-    result.update(
-        policy=args.policy,
-        command=command_line(),
-        machine=describe_machine(args.device),
-        wall_clock_s=wall,
-    )
-    print(stress_table(result, name), end="")
-    if args.out:
-        write_stress(result, args.out, name)
-    print(f"wall-clock {wall:.1f} s" + (f"; results in {args.out}/" if args.out else ""))
-    return 0
-
-
-def add_stress_command(sub) -> None:
-    """Register ``dockingrl stress`` on the CLI's subparsers ``sub``."""
-    from dockingrl.arguments import COUNT, POSITIVE
-
-    st = sub.add_parser(
-        "stress",
-        help="evaluate a policy on the stress ladder L0 (the paper's task) to L5 (docs/realism.md)",
-        description="Evaluate a policy at each level of the stress ladder: L0 the paper's task, "
-        "L1 slow, late and faulty sensors, L2 a varying, imperfectly known current, L3 a "
-        "mismatched vehicle, L4 sensors and current, L5 all of them. Writes stress.json, "
-        "stress.md and stress.png with --out.",
-    )
-    st.add_argument("--policy", default="managed_surge", help="'managed_surge' or a policy.pt")
-    st.add_argument("--scenario", help="scenario (default: the policy's, or noise)")
-    st.add_argument("--episodes", type=COUNT, default=1000, help="episodes a level")
-    st.add_argument("--levels", help=f"comma-separated levels (default: {','.join(LEVELS)})")
-    st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--gate", type=POSITIVE, default=None, help="EKF chi-square gate (13.8)")
-    st.add_argument("--use-filter", action="store_true", help="managed surge reads the EKF")
-    st.add_argument("--out", help="folder for stress.json, stress.md and stress.png")
-    st.add_argument("--device", default="cpu")
-    st.add_argument("--threads", type=COUNT, default=1)
-    st.set_defaults(func=cmd_stress)

@@ -21,12 +21,12 @@ def _shorten_episodes(patch: pytest.MonkeyPatch):
     build; returns that world's config."""
     from helpers import SMOKE_EPISODE_STEPS
 
-    from dockingrl import cli, training
+    from dockingrl import policies, training
     from dockingrl.env import DockingConfig
 
     short = functools.partial(DockingConfig, max_steps=SMOKE_EPISODE_STEPS)
     patch.setattr(training, "DockingConfig", short)
-    patch.setattr(cli, "DockingConfig", short)
+    patch.setattr(policies, "DockingConfig", short)
     return short()
 
 

@@ -172,7 +172,7 @@ def _raise(exc):
 
 
 def test_an_unexpected_error_is_one_line_that_points_to_debug(monkeypatch, capsys):
-    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", _raise(ZeroDivisionError("oops")))
+    monkeypatch.setattr("dockingrl.cli.filter.cmd_filter_figure", _raise(ZeroDivisionError("oops")))
     line = fails(capsys, ["filter-figure"], 1)
     assert line == (
         "dockingrl: error: ZeroDivisionError: oops (unexpected: run with --debug for the traceback)"
@@ -185,20 +185,20 @@ def test_a_runtime_error_of_dockingrl_is_input_one_of_a_library_a_bug(monkeypatc
     def dockingrl_check(args):
         ActionRepeat(2).forward(None)  # "... use it inside a TransformedEnv"
 
-    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", dockingrl_check)
+    monkeypatch.setattr("dockingrl.cli.filter.cmd_filter_figure", dockingrl_check)
     line = fails(capsys, ["filter-figure"], 1)
     assert "TransformedEnv" in line and "--debug" not in line
 
     def library_error(args):
         torch.zeros(2) @ torch.zeros(3)
 
-    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", library_error)
+    monkeypatch.setattr("dockingrl.cli.filter.cmd_filter_figure", library_error)
     line = fails(capsys, ["filter-figure"], 1)
     assert line.startswith("dockingrl: error: RuntimeError: ") and "--debug" in line
 
 
 def test_ctrl_c_is_one_line_and_status_130(monkeypatch, capsys):
-    monkeypatch.setattr("dockingrl.cli.cmd_filter_figure", _raise(KeyboardInterrupt()))
+    monkeypatch.setattr("dockingrl.cli.filter.cmd_filter_figure", _raise(KeyboardInterrupt()))
     assert fails(capsys, ["filter-figure"], 130) == "dockingrl: error: interrupted"
 
 

@@ -16,7 +16,7 @@ from dockingrl.filter_learning import (
 )
 from dockingrl.scenarios import make_filter
 from dockingrl.transforms import EKFTransform, MeasurementNoise, ProcessNoise
-from dockingrl.upgrade_cli import upgrade_file
+from dockingrl.upgrade import upgrade_file
 
 
 @pytest.fixture(scope="module")

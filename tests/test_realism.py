@@ -408,8 +408,8 @@ def test_stress_command_writes_table_json_and_plot(tmp_path, capsys):
     import json
 
     from dockingrl.agents.managed_surge import ManagedSurgePolicy
+    from dockingrl.cli.stress import add_stress_command
     from dockingrl.evaluation import evaluate
-    from dockingrl.stress import add_stress_command
 
     parser = argparse.ArgumentParser()
     add_stress_command(parser.add_subparsers())

@@ -8,7 +8,7 @@ from dockingrl import SCENARIOS, make_env
 from dockingrl.env import DockingConfig, DockingEnv, observation_from_state, wrap_angle
 from dockingrl.scenarios import OBSERVATION_PARTS, observation_layout
 from dockingrl.transforms import CompoundObservation, EKFTransform
-from dockingrl.upgrade_cli import upgrade_file
+from dockingrl.upgrade import upgrade_file
 
 
 def true_observation(td):

@@ -1,4 +1,5 @@
-"""``dockingrl train``: the command-line front of :func:`dockingrl.training.train`."""
+"""``dockingrl train`` and ``dockingrl recipes``: the command-line front of
+:func:`dockingrl.training.train` and :mod:`dockingrl.recipes`."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from dockingrl.agents.config import (
     config_from_args,
     overrides_from_args,
 )
-from dockingrl.arguments import UsageError
+from dockingrl.cli.arguments import UsageError
+from dockingrl.provenance import command_line
 
 
 def add_training_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,7 +55,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _from_command_line(make: Callable[[], TrainConfig]) -> TrainConfig:
     """``make()``, its refusal of a value or an option of the command line raised as a
-    :class:`~dockingrl.arguments.UsageError`."""
+    :class:`~dockingrl.cli.arguments.UsageError`."""
     try:
         return make()
     except ValueError as exc:
@@ -74,7 +76,6 @@ def config_from_recipe(args: argparse.Namespace) -> TrainConfig:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from dockingrl.cli import command_line
     from dockingrl.training import TrainingInterrupted, train
 
     if args.resume:
@@ -115,7 +116,25 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_recipes(args: argparse.Namespace) -> int:
+    from dockingrl.recipes import load_recipe, recipe_names
+
+    if args.name:
+        recipe = load_recipe(args.name)
+        print(f"{recipe.name} ({recipe.algo}): {recipe.description}")
+        for key, value in recipe.make_config().to_dict().items():
+            mark = "*" if key in recipe.config else " "
+            print(f" {mark} {key} = {value}")
+        print("(* set by the recipe; the others are the paper's defaults)")
+        return 0
+    for name in recipe_names():
+        recipe = load_recipe(name)
+        print(f"{name:<10} {recipe.algo}  {recipe.description}")
+    return 0
+
+
 def add_training_commands(sub) -> None:
+    """Register ``dockingrl train`` and ``dockingrl recipes`` on the CLI's subparsers ``sub``."""
     tr = sub.add_parser(
         "train",
         help="train SAC, TD3 or PPO on a scenario",
@@ -123,3 +142,7 @@ def add_training_commands(sub) -> None:
     )
     add_training_arguments(tr)
     tr.set_defaults(func=cmd_train)
+
+    rc = sub.add_parser("recipes", help="list the named recipes, or show one")
+    rc.add_argument("name", nargs="?", help="a recipe name or YAML file to show whole")
+    rc.set_defaults(func=cmd_recipes)

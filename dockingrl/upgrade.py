@@ -1,10 +1,8 @@
-"""``dockingrl upgrade``: convert policy, filter-parameter and checkpoint files of an older
-format, once, into the current one (read weights-only, rewritten atomically)."""
+"""Converting policy, filter-parameter and checkpoint files of an older format, once, into the
+current one (read weights-only, rewritten atomically; ``dockingrl upgrade``)."""
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 from dockingrl.io import ArtifactError, read_old_artifact
@@ -47,36 +45,3 @@ def upgrade_targets(path: str | Path) -> list[Path]:
     if not files:
         raise ArtifactError(f"{path}: holds no .pt file and no checkpoint to convert")
     return files
-
-
-def cmd_upgrade(args: argparse.Namespace) -> int:
-    failed = 0
-    for path in args.paths:
-        try:
-            files = upgrade_targets(path)
-        except ArtifactError as exc:
-            print(f"dockingrl: error: {exc}", file=sys.stderr)
-            failed += 1
-            continue
-        for file in files:
-            try:
-                print(upgrade_file(file))
-            except ArtifactError as exc:
-                print(f"dockingrl: error: {exc}", file=sys.stderr)
-                failed += 1
-    return 1 if failed else 0
-
-
-def add_upgrade_command(sub) -> None:
-    """Register ``dockingrl upgrade`` on the subcommands ``sub`` of the CLI's parser."""
-    up = sub.add_parser(
-        "upgrade",
-        help="convert policy, filter-parameter and checkpoint files of an older format",
-        description="Rewrite each file (or each run folder's policy.pt, *.pt files and "
-        "checkpoints) of an older dockingrl format in the current one, with its content hash "
-        "and, for a policy, its observation layout. Files are read weights-only (no code runs) "
-        "and replaced atomically; current files are left as they are. Exit status 1 if a file "
-        "could not be converted.",
-    )
-    up.add_argument("paths", nargs="+", metavar="PATH", help="a file or a run folder")
-    up.set_defaults(func=cmd_upgrade)

@@ -1,28 +1,12 @@
-"""``dockingrl grid`` and ``dockingrl recipes``: the command-line front of
-:mod:`dockingrl.grid` and :mod:`dockingrl.recipes`."""
+"""``dockingrl grid`` and ``dockingrl table``: the command-line front of :mod:`dockingrl.grid`
+and :mod:`dockingrl.table`."""
 
 from __future__ import annotations
 
 import argparse
 
-from dockingrl.arguments import COUNT, NON_NEGATIVE, NON_NEGATIVE_INT, POSITIVE
-
-
-def cmd_recipes(args: argparse.Namespace) -> int:
-    from dockingrl.recipes import load_recipe, recipe_names
-
-    if args.name:
-        recipe = load_recipe(args.name)
-        print(f"{recipe.name} ({recipe.algo}): {recipe.description}")
-        for key, value in recipe.make_config().to_dict().items():
-            mark = "*" if key in recipe.config else " "
-            print(f" {mark} {key} = {value}")
-        print("(* set by the recipe; the others are the paper's defaults)")
-        return 0
-    for name in recipe_names():
-        recipe = load_recipe(name)
-        print(f"{name:<10} {recipe.algo}  {recipe.description}")
-    return 0
+from dockingrl.cli.arguments import COUNT, NON_NEGATIVE, NON_NEGATIVE_INT, POSITIVE
+from dockingrl.provenance import command_line
 
 
 def cmd_grid(args: argparse.Namespace) -> int:
@@ -50,7 +34,6 @@ def cmd_grid(args: argparse.Namespace) -> int:
         print(f"{len(left)} of {len(states)} trials not finished; run the same command to resume")
         return 1 if any(states[n] == "failed" for n in left) else 3
     if args.table:
-        from dockingrl.cli import command_line
         from dockingrl.table import write_table
 
         dirs = [grid.collect / t.name if grid.collect else grid.run_dir(t) for t in grid.trials]
@@ -60,7 +43,6 @@ def cmd_grid(args: argparse.Namespace) -> int:
 
 
 def cmd_table(args: argparse.Namespace) -> int:
-    from dockingrl.cli import command_line
     from dockingrl.table import write_table
 
     table = write_table(
@@ -71,10 +53,7 @@ def cmd_table(args: argparse.Namespace) -> int:
 
 
 def add_grid_commands(sub) -> None:
-    rc = sub.add_parser("recipes", help="list the named recipes, or show one")
-    rc.add_argument("name", nargs="?", help="a recipe name or YAML file to show whole")
-    rc.set_defaults(func=cmd_recipes)
-
+    """Register ``dockingrl grid`` and ``dockingrl table`` on the CLI's subparsers ``sub``."""
     gr = sub.add_parser(
         "grid",
         help="train a grid of recipes x scenarios x seeds on Ray (resumable)",

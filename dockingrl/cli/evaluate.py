@@ -1,0 +1,231 @@
+"""``dockingrl eval`` and ``dockingrl export``: the command-line front of
+:mod:`dockingrl.evaluation` and :mod:`dockingrl.onboard`."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+
+from dockingrl.cli.arguments import (
+    COUNT,
+    NON_NEGATIVE,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    UsageError,
+    torch_device,
+)
+from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
+from dockingrl.io import write_json
+from dockingrl.policies import FIGURE_10_CASES, evaluation_world, load_policy
+from dockingrl.provenance import command_line, footer_text
+from dockingrl.scenarios import SCENARIOS, mirror_signs
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    """``dockingrl eval``: a policy's evaluation, success map, trajectories and video."""
+    from dockingrl.plots import plot_success_map, plot_trajectories
+
+    torch.set_num_threads(args.threads)
+    policy, name, trained_scenario, options, trained = load_policy(
+        args.policy, use_filter=args.use_filter, device=args.device
+    )
+    scenario = args.scenario or trained_scenario or "noise"
+    if trained:
+        from dockingrl.onboard import check_env_layout
+
+        check_env_layout(trained, scenario, options)
+    if args.mirrored:
+        if not trained:
+            raise UsageError("--mirrored needs a saved agent (--policy PATH)")
+        from dockingrl.agents import MirroredPolicy
+
+        flags = {k: bool(options.get(k)) for k in ("observe_current", "observe_command")}
+        policy, name = MirroredPolicy(policy, mirror_signs(scenario, **flags)), f"{name} mirrored"
+    world, taken = evaluation_world(
+        scenario,
+        trained,
+        range_noise_scale=args.range_noise_scale,
+        bearing_noise_scale=args.bearing_noise_scale,
+        speed_tolerance=args.speed_tolerance,
+        filter_params=args.filter_params,
+    )
+    if taken:
+        print(taken)
+    env_kwargs = {"device": args.device, **options, **world}
+    out = Path(args.out) if args.out else None
+    if out is not None and out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"--out {out}: a file, not a folder")
+    if args.video:
+        from dockingrl.render import VIDEO_SUFFIXES
+
+        if Path(args.video).suffix.lower() not in VIDEO_SUFFIXES:
+            raise UsageError(f"--video {args.video}: the suffix must be one of .gif, .mp4")
+    start = time.perf_counter()
+    metrics = evaluate(
+        policy,
+        scenario,
+        args.episodes,
+        seed=args.seed,
+        progress=not args.quiet,
+        stochastic=args.stochastic,
+        **env_kwargs,
+    )
+    metrics.update(policy=args.policy, command=command_line())
+    print(table_row(name, scenario, metrics))
+    speed, success_time = metrics["contact_speed"], metrics["time_success_s"]
+    line = f"failures: {metrics['failures']}"
+    if speed["n"]:
+        line += f"; contact speed {speed['mean']:.3f} +- {speed['std']:.3f} m/s"
+    if success_time["n"]:
+        line += f"; time over successes {success_time['mean']:.1f} +- {success_time['std']:.1f} s"
+    print(line)
+    thirds = ", ".join(
+        f"{t['oc_x']} {t['success_rate']:.1f} %" for t in metrics["by_current_x"] if t["episodes"]
+    )
+    print(
+        f"success by oc_x: {thirds}; timeouts ending beyond the station: "
+        f"{metrics['timeouts_beyond_station']}"
+    )
+    if out is not None:
+        write_json(out / "eval.json", metrics)
+    if args.map:
+        result = success_map(
+            policy,
+            scenario,
+            trials=args.map_trials,
+            seed=args.seed,
+            progress=not args.quiet,
+            **env_kwargs,
+        )
+        result.update(policy=args.policy, command=command_line())
+        print(f"success map: mean {result['mean_success_rate']:.1f} %")
+        if out is not None:
+            write_json(out / "success_map.json", result)
+            plot_success_map(
+                result,
+                out / "success_map.png",
+                title=f"{name}, {scenario}: success (%) per current",
+                footer=footer_text(device=args.device),
+            )
+    if args.trajectories:
+        cases = trajectories(policy, FIGURE_10_CASES, scenario, seed=args.seed, **env_kwargs)
+        if out is not None:
+            write_json(out / "trajectories.json", {"command": command_line(), "cases": cases})
+            plot_trajectories(
+                cases, out / "trajectories.png", footer=footer_text(device=args.device)
+            )
+    if args.video:
+        from dockingrl.render import write_video
+
+        video = write_video(
+            policy, scenario, args.video, episodes=args.video_episodes, seed=args.seed, **env_kwargs
+        )
+        print(f"video: {video}")
+    wall = time.perf_counter() - start
+    print(f"wall-clock {wall:.1f} s" + (f"; results in {out}/" if out else ""))
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """``dockingrl export``: a policy and its filter as a torch.export program."""
+    from dockingrl.onboard import OnboardPolicy, export_onboard
+
+    policy = OnboardPolicy.from_file(args.policy, filter_params=args.filter_params)
+    path = export_onboard(policy, args.out, batch=args.batch)
+    print(
+        f"wrote {path}: torch.export.load(path).module()(z, current, mean, cov, command, age) "
+        f"-> (command, mean, cov, age), {args.batch} vehicle(s), scenario {policy.scenario}; "
+        "age -1 starts an approach"
+    )
+    return 0
+
+
+def add_evaluation_commands(sub) -> None:
+    """Register ``dockingrl eval`` and ``dockingrl export`` on the CLI's subparsers ``sub``."""
+    ev = sub.add_parser(
+        "eval",
+        help="evaluate the managed surge controller or a saved agent (Tables 6-7, Figs. 9-10)",
+        description="Evaluate a policy on N episodes run as one batch; prints a Table 6/7 row "
+        "beside the paper's and writes eval.json (+ success_map, trajectories) to --out.",
+    )
+    ev.add_argument(
+        "--policy",
+        default="managed_surge",
+        help="'managed_surge' or the path of a saved agent (policy.pt)",
+    )
+    ev.add_argument(
+        "--scenario",
+        choices=list(SCENARIOS),
+        default=None,
+        help="default: the agent's training scenario, or 'noise' for the controller",
+    )
+    ev.add_argument("--episodes", type=COUNT, default=500, help="number of episodes (paper: 500)")
+    ev.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="evaluation seed")
+    ev.add_argument("--out", default=None, help="results folder (JSON + PNG)")
+    ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
+    ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")
+    ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")
+    ev.add_argument(
+        "--video",
+        metavar="PATH",
+        default=None,
+        help="also a GIF (.gif) or MP4 (.mp4) of --video-episodes episodes, drawn as Figure 10",
+    )
+    ev.add_argument(
+        "--video-episodes", type=COUNT, default=3, help="episodes in the --video (default 3)"
+    )
+    ev.add_argument(
+        "--use-filter",
+        action="store_true",
+        help="managed surge reads the EKF estimate (filtered/compound scenarios)",
+    )
+    ev.add_argument(
+        "--speed-tolerance",
+        type=NON_NEGATIVE,
+        default=0.0,
+        help="m/s added to the 0.3 m/s contact-speed limit of the success test",
+    )
+    ev.add_argument(
+        "--filter-params",
+        default=None,
+        help="learned Q/R file for the EKF; default: the agent's training file (if any), "
+        "'none': Table 1's filter",
+    )
+    for sensor in ("range", "bearing"):
+        ev.add_argument(
+            f"--{sensor}-noise-scale",
+            type=POSITIVE,
+            default=None,
+            help=f"env's USBL {sensor} noise x this; default: the agent's training value (1)",
+        )
+    ev.add_argument(
+        "--stochastic",
+        action="store_true",
+        help="sample the agent's actions as in training instead of taking their mode "
+        "(the 500-episode evaluation only; map and trajectories stay deterministic)",
+    )
+    ev.add_argument(
+        "--mirrored",
+        action="store_true",
+        help="evaluate the agent mirrored through the docking axis (y -> -y): a policy that "
+        "treats both sides alike scores the same (dockingrl.agents.MirroredPolicy)",
+    )
+    ev.add_argument("--threads", type=COUNT, default=2, help="torch CPU threads")
+    ev.add_argument(
+        "--device", type=torch_device, default="cpu", help="torch device of the envs and the policy"
+    )
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    ev.set_defaults(func=cmd_eval)
+
+    ex = sub.add_parser(
+        "export",
+        help="write a trained policy with its filter as a torch.export program for a vehicle",
+    )
+    ex.add_argument("--policy", required=True, help="policy.pt written by training")
+    ex.add_argument("--out", required=True, help="the program's file (.pt2)")
+    ex.add_argument("--batch", type=COUNT, default=1, help="vehicles per call")
+    ex.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
+    ex.set_defaults(func=cmd_export)

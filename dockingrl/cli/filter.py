@@ -1,0 +1,319 @@
+"""``dockingrl learn-filter``, ``filter-ablation``, ``ppo-filter-comparison`` and
+``filter-figure``: fit the EKF's ``Q`` and ``R``, compare learned filters with the hand-tuned one
+(Tables 1-2) and draw Figure 5; the command-line front of :mod:`dockingrl.filter_learning` and
+:mod:`dockingrl.filter_experiments`."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+
+from dockingrl.cli.arguments import (
+    COUNT,
+    FINITE,
+    NON_NEGATIVE,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    UsageError,
+    integer,
+)
+from dockingrl.filter_comparison import ppo_filter_comparison
+from dockingrl.filter_experiments import (
+    filter_ablation,
+    filter_episode,
+    learn_filter,
+)
+from dockingrl.filter_learning import (
+    LEARN_R,
+    OBJECTIVES,
+    FilterFit,
+)
+from dockingrl.io import write_json
+from dockingrl.provenance import command_line, footer_text
+from dockingrl.transforms.filtering import RANGE_NOISE_FROM
+
+
+def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    d = FilterFit()
+    parser.add_argument("--num-envs", type=COUNT, default=d.num_envs, help="envs per rollout batch")
+    parser.add_argument("--steps", type=COUNT, default=d.steps, help="steps recorded per env")
+    parser.add_argument("--window", type=integer(2), default=d.window, help="truncated-BPTT window")
+    parser.add_argument("--epochs", type=COUNT, default=d.epochs, help="passes over the rollouts")
+    parser.add_argument("--lr", type=POSITIVE, default=d.lr, help="Adam learning rate (log-params)")
+    parser.add_argument(
+        "--behaviour",
+        choices=["managed_surge", "random"],
+        default=d.behaviour,
+        help="behaviour policy of the rollouts",
+    )
+    parser.add_argument(
+        "--seed", type=NON_NEGATIVE_INT, default=d.seed, help="seed of the training rollouts"
+    )
+    parser.add_argument(
+        "--noise-scale",
+        type=POSITIVE,
+        default=1.0,
+        help="env's USBL range and bearing noise x this (the mismatch; the "
+        "hand-tuned filter keeps Table 2's R)",
+    )
+    parser.add_argument("--threads", type=COUNT, default=2, help="torch CPU threads")
+    parser.add_argument(
+        "--manoeuvre-noise",
+        action="store_true",
+        help="learn a Q that grows with the gap between commanded and estimated velocity "
+        "(not in the paper; see dockingrl.transforms.ProcessNoise)",
+    )
+    parser.add_argument(
+        "--context-noise",
+        action="store_true",
+        help="learn Q and R scaled by the manoeuvre, the range and the filter's age (not in "
+        "the paper; see dockingrl.transforms.NoiseContext); filter-ablation adds such rows, "
+        "each starting from the constant fit of its objective",
+    )
+    parser.add_argument(
+        "--whiteness",
+        type=NON_NEGATIVE,
+        default=d.whiteness,
+        help="nll: weight of a penalty on the whitened innovations' correlation between steps "
+        "(see dockingrl.filter_learning.innovation_whiteness; 0: none)",
+    )
+    parser.add_argument(
+        "--lags", type=COUNT, default=d.lags, help="lags of the whiteness penalty (1..window-1)"
+    )
+    parser.add_argument(
+        "--range-noise-from",
+        choices=list(RANGE_NOISE_FROM),
+        default=RANGE_NOISE_FROM[0],
+        help="the range that scales the learned filters' range sigma: the measured one "
+        "(Table 2 as the paper uses it) or the estimate's, which does not bias the range "
+        "short (see dockingrl.transforms.EKFTransform; not in the paper)",
+    )
+    parser.add_argument(
+        "--learn-r",
+        choices=list(LEARN_R),
+        default=FilterFit().learn_r,
+        help="which sigmas of R are fitted: all six, the USBL's range and bearing (the "
+        "heading, DVL and IMU keep Table 2's, their data-sheet values) or none",
+    )
+    parser.add_argument(
+        "--context-epochs",
+        type=COUNT,
+        default=None,
+        help="filter-ablation: passes of the context fits, after the constant fit they start "
+        "from (default: --epochs)",
+    )
+
+
+def _check_fit_arguments(args: argparse.Namespace) -> None:
+    """Refuse, before any rollout, a window the recorded steps cannot fill and whiteness lags
+    the window cannot hold."""
+    if args.steps <= args.window:
+        raise UsageError(f"--steps ({args.steps}) must exceed --window ({args.window})")
+    if args.whiteness > 0 and args.lags >= args.window:
+        raise UsageError(f"--lags ({args.lags}) must be below --window ({args.window})")
+
+
+def _fit_options(args: argparse.Namespace, objective: str) -> FilterFit:
+    """The fit options of the command line, for ``objective``."""
+    return FilterFit(
+        objective=objective,
+        num_envs=args.num_envs,
+        steps=args.steps,
+        window=args.window,
+        epochs=args.epochs,
+        lr=args.lr,
+        behaviour=args.behaviour,
+        seed=args.seed,
+        whiteness=args.whiteness if objective == "nll" else 0.0,
+        lags=args.lags,
+        learn_r=args.learn_r,
+    )
+
+
+def cmd_learn_filter(args: argparse.Namespace) -> int:
+    """``dockingrl learn-filter``: one filter fitted and scored on held-out rollouts."""
+    from dockingrl.training import RunLogger
+
+    _check_fit_arguments(args)
+    torch.set_num_threads(args.threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    options = {k: v for k, v in vars(args).items() if k != "func"}
+    logger = RunLogger(options, args.logger, out, f"filter-{args.objective}-{int(time.time())}")
+    report = learn_filter(
+        _fit_options(args, args.objective),
+        out,
+        noise_scale=args.noise_scale,
+        manoeuvre_noise=args.manoeuvre_noise,
+        context_noise=args.context_noise,
+        range_noise_from=args.range_noise_from,
+        log=logger.log,
+        command=command_line(),
+    )
+    logger.finish({"objective": args.objective})
+    print(
+        f"wrote {out / 'filter_params.pt'}; held-out position RMSE hand-tuned "
+        f"{report['held_out_hand_tuned']['rmse_position_m']:.3f} m -> learned "
+        f"{report['held_out_learned']['rmse_position_m']:.3f} m, NEES "
+        f"{report['held_out_hand_tuned']['nees_mean']:.1f} -> "
+        f"{report['held_out_learned']['nees_mean']:.1f} (5 is consistent)"
+    )
+    return 0
+
+
+def cmd_filter_ablation(args: argparse.Namespace) -> int:
+    """``dockingrl filter-ablation``: hand-tuned against learned filters, nominal and
+    mismatched sensor noise."""
+    if args.whiteness:
+        raise UsageError("--whiteness applies to learn-filter, not to the ablation table")
+    _check_fit_arguments(args)
+    torch.set_num_threads(args.threads)
+    text = filter_ablation(
+        _fit_options(args, "nll"),
+        args.out,
+        mismatch=args.mismatch,
+        manoeuvre_noise=args.manoeuvre_noise,
+        context_noise=args.context_noise,
+        range_noise_from=args.range_noise_from,
+        context_epochs=args.context_epochs,
+        command=command_line(),
+    )
+    print(text)
+    return 0
+
+
+def cmd_filter_figure(args: argparse.Namespace) -> int:
+    """One episode of the managed surge controller (on the EKF estimate) in the compound
+    scenario: raw, filtered and true rho, psi, alpha (Figure 5)."""
+    from dockingrl.plots import plot_filter_episode
+
+    episode = filter_episode(args.start, args.current, seed=args.seed)
+    seconds = episode["seconds"]
+    out = Path(args.out)
+    plot_filter_episode(
+        seconds,
+        episode["raw"],
+        episode["filtered"],
+        episode["true"],
+        out / "filter_episode.png",
+        footer=footer_text(),
+    )
+    write_json(
+        out / "filter_episode.json",
+        {
+            "command": command_line(),
+            "start": args.start,
+            "ocean_current": args.current,
+            "steps": len(seconds),
+            "rmse_raw": episode["rmse_raw"],
+            "rmse_filtered": episode["rmse_filtered"],
+        },
+    )
+    print(f"wrote {out}/filter_episode.png ({len(seconds)} steps)")
+    return 0
+
+
+def add_filter_commands(sub) -> None:
+    """Register the filter subcommands on the CLI's subparsers ``sub``."""
+    ff = sub.add_parser("filter-figure", help="raw vs filtered vs true observation (Figure 5)")
+    ff.add_argument("--out", default="results/filter", help="results folder")
+    ff.add_argument("--seed", type=NON_NEGATIVE_INT, default=0)
+    ff.add_argument(
+        "--start", type=FINITE, nargs=3, default=[-28.0, 5.0, 0.3], metavar=("X", "Y", "ALPHA")
+    )
+    ff.add_argument(
+        "--current", type=FINITE, nargs=2, default=[0.1, -0.1], metavar=("OC_X", "OC_Y")
+    )
+    ff.set_defaults(func=cmd_filter_figure)
+
+    lf = sub.add_parser(
+        "learn-filter", help="fit the EKF's Q and R on rollouts (nll or supervised)"
+    )
+    lf.add_argument(
+        "--objective",
+        choices=list(OBJECTIVES),
+        default="nll",
+        help="nll: innovation likelihood (noisy data only); supervised: likelihood of "
+        "the true state under the estimate (simulation only)",
+    )
+    lf.add_argument("--out", default="runs/filter", help="folder for filter_params.pt, eval.json")
+    lf.add_argument(
+        "--logger", choices=["wandb", "csv", "none"], default="wandb", help="wandb runs offline"
+    )
+    _add_fit_arguments(lf)
+    lf.set_defaults(func=cmd_learn_filter)
+
+    ab = sub.add_parser(
+        "filter-ablation", help="hand-tuned vs learned filters, nominal and mismatched sensor noise"
+    )
+    ab.add_argument("--out", default="results/filter_ablation", help="results folder")
+    ab.add_argument(
+        "--mismatch",
+        type=POSITIVE,
+        default=2.0,
+        help="scale of the env's range and bearing noise in the mismatched condition",
+    )
+    _add_fit_arguments(ab)
+    ab.set_defaults(func=cmd_filter_ablation)
+
+    pc = sub.add_parser(
+        "ppo-filter-comparison",
+        help="PPO compound agents with the hand-tuned and a learned filter, mismatched noise",
+    )
+    pc.add_argument("--filter-params", required=True, help="learned Q/R file (learn-filter)")
+    pc.add_argument("--noise-scale", type=POSITIVE, default=2.0, help="env's range/bearing noise x")
+    pc.add_argument("--total-steps", type=COUNT, default=2_000_000, help="env steps per agent")
+    pc.add_argument("--out", default="results/filter_ablation", help="results folder")
+    pc.add_argument("--runs", default="runs", help="folder of the training runs")
+    pc.add_argument(
+        "--seeds",
+        type=NON_NEGATIVE_INT,
+        nargs="+",
+        default=[0],
+        help="training seeds (one agent each)",
+    )
+    pc.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="more PPO config fields of the fast preset (e.g. num_envs=8)",
+    )
+    pc.set_defaults(func=cmd_ppo_filter_comparison)
+
+
+def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
+    """Train two PPO ``compound`` agents (``fast`` preset) in the mismatched-noise env, one
+    reading the hand-tuned filter and one the learned filter, and tabulate their final
+    500-episode evaluations (``ppo_mismatch.{json,md}``)."""
+    from dockingrl.agents.config import parse_overrides
+
+    if not Path(args.filter_params).is_file():
+        raise FileNotFoundError(f"--filter-params {args.filter_params!r}: no such file")
+    fixed = {"scenario", "total_steps", "range_noise_scale", "bearing_noise_scale"}
+    fixed |= {"filter_params", "out", "run_name", "logger", "seed"}
+    try:
+        extra = parse_overrides("ppo", args.set)
+    except ValueError as exc:
+        raise UsageError(f"--set {exc}") from exc
+    if fixed & set(extra):
+        raise UsageError(
+            f"--set cannot change {', '.join(sorted(fixed & set(extra)))}: "
+            "the comparison sets it with its own options"
+        )
+    text = ppo_filter_comparison(
+        args.filter_params,
+        args.out,
+        noise_scale=args.noise_scale,
+        total_steps=args.total_steps,
+        runs_dir=args.runs,
+        seeds=args.seeds,
+        extra=extra,
+        overrides=args.set,
+        command=command_line(),
+    )
+    print(text)
+    return 0
