@@ -3,4 +3,5 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 bash scripts/install.sh
-${PYTHON:-python3} -m pytest -q tests "$@"
+# one test process per core (-n auto); each test runs torch on one thread (tests/conftest.py)
+${PYTHON:-python3} -m pytest -q -n auto tests "$@"
