@@ -17,6 +17,11 @@ vehicle neither is known. Two objectives:
 
 Both run the differentiable filter of :mod:`dockingrl.transforms.ekf` over recorded rollouts with
 truncated backpropagation through time (windows of ``window`` steps).
+
+On an env whose sensors report at their own rates (``sensor_age`` recorded, docs/realism.md)
+the filter updates with the readings that arrived only, as the env's :class:`EKFTransform`
+does, and the innovation objectives and metrics (NLL, NIS, whiteness) count those readings
+only: a held reading is not a new measurement.
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ from dockingrl.transforms.ekf import (
     innovation_covariance,
     measurement_jacobian,
 )
-from dockingrl.transforms.filtering import CONTEXT_FEATURES, EKFTransform
+from dockingrl.transforms.filtering import CONTEXT_FEATURES, EKFTransform, arrived_readings
 
 OBJECTIVES = ("nll", "supervised", "mse")
 #: Which of ``R``'s six sigmas a fit learns; the others keep their values (Table 2 unless
@@ -64,7 +69,23 @@ def gaussian_nll(residual: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
     return _nll_of_whitened(*whiten(residual, cov))
 
 
-def innovation_whiteness(white: torch.Tensor, valid: torch.Tensor, lags: int) -> torch.Tensor:
+def masked_innovation(
+    residual: torch.Tensor, cov: torch.Tensor, arrived: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The innovation ``(..., m)`` and its covariance ``(..., m, m)`` of the ``arrived``
+    entries ``(..., m)`` only: the others' residuals set to 0 and their rows and columns to
+    the identity's, so that ``r^T C^-1 r`` and ``log det C`` are those of the arrived entries'
+    marginal and their whitened values are 0. ``None``: unchanged."""
+    if arrived is None:
+        return residual, cov
+    both = arrived.unsqueeze(-1) & arrived.unsqueeze(-2)
+    eye = torch.eye(cov.shape[-1], dtype=cov.dtype, device=cov.device)
+    return torch.where(arrived, residual, torch.zeros_like(residual)), torch.where(both, cov, eye)
+
+
+def innovation_whiteness(
+    white: torch.Tensor, valid: torch.Tensor, lags: int, arrived: torch.Tensor | None = None
+) -> torch.Tensor:
     """Whiteness penalty of whitened innovations: ``sum_k ||C_k||_F^2``, ``k = 1..lags``, with
     ``C_k`` the mean over envs and steps of ``w_t w_{t-k}^T``.
 
@@ -77,6 +98,9 @@ def innovation_whiteness(white: torch.Tensor, valid: torch.Tensor, lags: int) ->
     Args:
         white: ``(T, N, m)`` whitened innovations.
         valid: ``(T, N)`` True where step ``t`` has an innovation (not an episode's first).
+        arrived: ``(T, N, m)`` True where an entry's reading arrived (``None``: all): each
+            ``C_k[i, j]`` is then the mean over the pairs where both ``i`` at ``t`` and ``j``
+            at ``t - k`` arrived (the others' whitened values are 0).
     """
     run = torch.zeros_like(valid[0], dtype=torch.int64)
     runs = []
@@ -88,7 +112,11 @@ def innovation_whiteness(white: torch.Tensor, valid: torch.Tensor, lags: int) ->
     for k in range(1, lags + 1):
         keep = (runs[k:] > k).to(white.dtype)  # steps t-k..t of one episode, all with innovations
         count = keep.sum().clamp_min(1.0)
-        cross = torch.einsum("tn,tni,tnj->ij", keep, white[k:], white[:-k]) / count
+        cross = torch.einsum("tn,tni,tnj->ij", keep, white[k:], white[:-k])
+        if arrived is not None:
+            pairs = arrived.to(white.dtype)
+            count = torch.einsum("tn,tni,tnj->ij", keep, pairs[k:], pairs[:-k]).clamp_min(1.0)
+        cross = cross / count
         penalty = penalty + cross.pow(2).sum()
     return penalty
 
@@ -126,7 +154,8 @@ def record_rollouts(
 
     Returns a ``(steps, num_envs)`` tensordict of what each step saw: ``observation`` (the raw
     measurement at that step), ``action`` (applied after it, clipped), ``ocean_current``,
-    ``true_state`` and ``step_count`` (0 marks the first observation of an episode).
+    ``true_state`` and ``step_count`` (0 marks the first observation of an episode); and
+    ``sensor_age`` ``(steps, num_envs, 3)`` when the env reports it (a sensor option is on).
     """
     config = (config or DockingConfig()).replace(noise=True)
     env = DockingEnv(num_envs, config=config, seed=seed)
@@ -146,6 +175,8 @@ def record_rollouts(
         },
         batch_size=data.batch_size,
     )
+    if "sensor_age" in data.keys():
+        out["sensor_age"] = data["sensor_age"]
     return out.transpose(0, 1).contiguous()  # time first
 
 
@@ -169,16 +200,22 @@ def run_filter(
     lags: int = 5,
 ):
     """Run the filter over ``data`` (``(T, N)`` from :func:`record_rollouts`), re-initialising
-    each env at the first step of its episodes, differentiably in ``Q`` and ``R``.
+    each env at the first step of its episodes, differentiably in ``Q`` and ``R``. With
+    ``sensor_age`` in ``data`` a reading updates only at the step it arrived (as
+    :class:`EKFTransform` does in the env); ``ekf.gate`` rejects outliers as there.
 
     Args:
         state: ``(mean, cov, action)`` after the step before ``data[0]`` (truncated BPTT
             carries it, detached); ``None`` initialises from ``data[0]``.
         objective: if given, also return the mean loss per step and env.
         nis: if a list, the normalised innovation squared ``y^T S^-1 y`` of each step ``(N,)``
-            is appended to it (for the first step of an episode: NaN, no prediction).
+            is appended to it (for the first step of an episode: NaN, no prediction), over
+            the readings that arrived (NaN where none did).
         whiteness: with ``objective="nll"``, add this weight times
             :func:`innovation_whiteness` of the window's innovations over ``lags`` lags.
+
+    The ``nll`` objective is the mean over steps and envs of the innovations' negative
+    log-likelihood, each step's over the readings that arrived at it (0 where none did).
 
     Returns:
         ``(means, covs, (mean, cov), loss)``: the estimates after each step ``(T, N, 5)``,
@@ -188,7 +225,8 @@ def run_filter(
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
     z, action = data["observation"], data["action"]
     current, fresh = data["ocean_current"], data["step_count"] == 0
-    means, covs, losses, whites, valids = [], [], [], [], []
+    sensor_age = data.get("sensor_age", None)
+    means, covs, losses, whites, valids, arrivals = [], [], [], [], [], []
     if state is None:
         mean, cov = ekf.initial_estimate(z[0], current[0])
         previous_action, start = action[0], 1
@@ -204,20 +242,33 @@ def run_filter(
             mean, cov, applied, current[t], Q, dt, k_v=ekf.k_v, k_w=ekf.k_w
         )
         previous_action = action[t]
+        arrived = None if sensor_age is None else arrived_readings(sensor_age[t])
         if objective == "nll" or nis is not None:
             H = measurement_jacobian(prior_mean, current[t])
             S = innovation_covariance(prior_cov, H, torch.diag_embed(R))
-            w, L = whiten(innovation(prior_mean, z[t], current[t]), S)
+            w, L = whiten(*masked_innovation(innovation(prior_mean, z[t], current[t]), S, arrived))
         if objective == "nll":
             nll = _nll_of_whitened(w, L)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
             if whiteness > 0:
                 whites.append(torch.where(fresh[t].unsqueeze(-1), torch.zeros_like(w), w))
                 valids.append(~fresh[t])
+                if arrived is not None:
+                    arrivals.append(arrived)
         if nis is not None:
             value = w.pow(2).sum(-1)  # y^T S^-1 y
-            nis.append(torch.where(fresh[t], torch.full_like(value, float("nan")), value))
-        new_mean, new_cov = ekf_update(prior_mean, prior_cov, z[t], current[t], R, diagonal=True)
+            none = fresh[t] if arrived is None else fresh[t] | ~arrived.any(-1)
+            nis.append(torch.where(none, torch.full_like(value, float("nan")), value))
+        new_mean, new_cov = ekf_update(
+            prior_mean,
+            prior_cov,
+            z[t],
+            current[t],
+            R,
+            diagonal=True,
+            arrived=arrived,
+            gate=ekf.gate,
+        )
         mean, cov = ekf.start_where(fresh[t], new_mean, new_cov, z[t], current[t])
         if objective == "supervised":
             nll = gaussian_nll(state_error(mean, data["true_state"][t]), cov)
@@ -235,7 +286,10 @@ def run_filter(
         loss = torch.stack(losses).mean() if losses else None
     if whites:
         loss = loss + whiteness * innovation_whiteness(
-            torch.stack(whites), torch.stack(valids), lags
+            torch.stack(whites),
+            torch.stack(valids),
+            lags,
+            torch.stack(arrivals) if arrivals else None,
         )
     return torch.stack(means), torch.stack(covs), (mean, cov, previous_action), loss
 
@@ -374,12 +428,16 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
     95 % interval, and the Monte-Carlo test of Bar-Shalom, Li and Kirubarajan (2001, Sec. 5.4):
     the fraction of time indices at which the NEES averaged over the envs (independent runs)
     lies inside the 95 % region of such an average (about 95 % for a consistent filter).
-    Also the NIS of the innovations (:func:`_nis_report`; 6 for a consistent filter).
+    Also the NIS of the innovations (:func:`_nis_report`; 6 for a consistent filter, or the
+    number of readings that arrived with ``sensor_age`` recorded).
     """
     nis_steps: list[torch.Tensor] = []
     with torch.no_grad():
         means, covs, _, _ = run_filter(ekf, data, nis=nis_steps)
     keep = data["step_count"] >= skip
+    first_nis = keep.shape[0] - len(nis_steps)
+    sensor_age = data.get("sensor_age", None)
+    counts = None if sensor_age is None else arrived_readings(sensor_age[first_nis:]).sum(-1)
     nees_tn, per_component = normalized_errors(means, covs, data["true_state"])
     error, nees = state_error(means, data["true_state"]).double()[keep], nees_tn[keep]
     n, dof = nees.numel(), 5
@@ -406,7 +464,7 @@ def evaluate_filter(ekf: EKFTransform, data: TensorDict, *, skip: int = 10) -> d
         # above 1 where the filter is overconfident
         "normalized_error_per_component": per_component[keep].mean(0).tolist(),
         "nees_fraction_of_steps_in_run_mean_bounds": run_averaged_nees_test(nees_tn, keep, dof),
-        **_nis_report(torch.stack(nis_steps).double(), keep[keep.shape[0] - len(nis_steps) :]),
+        **_nis_report(torch.stack(nis_steps).double(), keep[first_nis:], counts),
     }
 
 
@@ -420,16 +478,32 @@ def _ci95_over_runs(values: torch.Tensor, keep: torch.Tensor) -> list[float]:
     return [float(per_run.mean()) - half, float(per_run.mean()) + half]
 
 
-def _nis_report(nis: torch.Tensor, keep: torch.Tensor, dim: int = 6) -> dict:
+def _nis_report(nis: torch.Tensor, keep: torch.Tensor, dof: torch.Tensor | None = None) -> dict:
     """Consistency of the innovations, the test that needs no ground truth (so it runs on
     logged vehicle data): NIS ``y^T S^-1 y`` is chi-square(6) for a consistent filter. Its
     mean with the 95 % confidence interval over the runs (envs), and the fraction of steps in
-    the per-step 95 % interval."""
-    low, high = _chi2_quantile(0.025, dim), _chi2_quantile(0.975, dim)
-    values = nis[keep]
+    the per-step 95 % interval.
+
+    ``dof`` ``(T, N)``: the number of readings that arrived at each step (sensors at their own
+    rates); each step's NIS is then chi-square(``dof``), the steps where none arrived are left
+    out, each step is checked against its own interval and ``nis_dof_mean`` is the mean that a
+    consistent filter's ``nis_mean`` has."""
+    if dof is None:
+        low, high = _chi2_quantile(0.025, MEASUREMENT_DIM), _chi2_quantile(0.975, MEASUREMENT_DIM)
+        values = nis[keep]
+        inside = (values >= low) & (values <= high)
+        extra = {"nis_step_bounds_95": [low, high]}
+    else:
+        keep = keep & (dof > 0)
+        values, counts = nis[keep], dof[keep]
+        inside = torch.zeros_like(values, dtype=torch.bool)
+        for k in counts.unique().tolist():
+            low, high = _chi2_quantile(0.025, k), _chi2_quantile(0.975, k)
+            inside |= (counts == k) & (values >= low) & (values <= high)
+        extra = {"nis_dof_mean": float(counts.double().mean())}
     return {
         "nis_mean": float(values.mean()),
         "nis_mean_ci95_over_runs": _ci95_over_runs(nis, keep),
-        "nis_fraction_in_step_bounds": float(((values >= low) & (values <= high)).double().mean()),
-        "nis_step_bounds_95": [low, high],
+        "nis_fraction_in_step_bounds": float(inside.double().mean()),
+        **extra,
     }

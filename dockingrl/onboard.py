@@ -9,6 +9,10 @@ scenarios the policy runs the same EKF as the training env, initialised from the
 of an approach and then predicted with the previous command and updated with each reading.
 A policy trained with ``--action-repeat k`` decides every ``k`` steps and holds its command in
 between, as in training; the filter still runs every step.
+A vehicle whose sensors report at their own rates (a 1 Hz USBL, say) also passes the age of
+each sensor's reading (``sensor_age``: seconds since the USBL, DVL and IMU readings arrived,
+what the env reports with a sensor option on, docs/realism.md): the filter then updates with
+the readings of age 0 only and predicts through the others, as the training env's filter does.
 ``reset()`` begins a new approach.
 """
 
@@ -26,6 +30,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dockingrl.env import DockingConfig
 from dockingrl.env.dynamics import clip_action
+from dockingrl.env.realism import SENSORS
 from dockingrl.scenarios import (
     FILTERED_OBSERVATION_KEYS,
     SCENARIOS,
@@ -63,13 +68,15 @@ class OnboardStep(nn.Module):
     """One control step as a pure function of the readings and the filter's state, the form
     :func:`export_onboard` hands to ``torch.export``:
 
-    ``(z, current, mean, cov, command, age) -> (command, mean, cov, age)``
+    ``(z, current, mean, cov, command, age[, sensor_age]) -> (command, mean, cov, age)``
 
     with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B, 5)``
     and ``cov`` ``(B, 5, 5)``, the previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the
     steps since the approach began; ``age < 0`` marks a new approach (the filter starts from
     ``z``). Scenarios without a filter pass ``mean`` and ``cov`` through and still count
-    ``age``. With ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the
+    ``age``. ``sensor_age`` ``(B, 3)`` (optional): seconds since the USBL, DVL and IMU
+    readings arrived; only those of age 0 update the filter (absent: every reading is new).
+    With ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the
     actor's command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
     the training env held it (:class:`~dockingrl.transforms.ActionRepeat`). With
     ``observe_command`` the actor also reads ``command`` (zeros on an approach's first step),
@@ -105,11 +112,11 @@ class OnboardStep(nn.Module):
     def observe_command(self) -> bool:
         return "previous_action" in self.layout
 
-    def forward(self, z, current, mean, cov, command, age):
+    def forward(self, z, current, mean, cov, command, age, sensor_age=None):
         parts = {"observation": z, "ocean_current": current}
         if self.ekf is not None:
             mean, cov, parts["filtered_observation"], age = self._filter(
-                z, current, mean, cov, command, age
+                z, current, mean, cov, command, age, sensor_age
             )
         else:
             age = torch.where(age < 0, torch.zeros_like(age), age + 1)
@@ -125,9 +132,9 @@ class OnboardStep(nn.Module):
         decide = torch.remainder(age, self.action_repeat) == 0
         return torch.where(decide, new_command, command), mean, cov, age
 
-    def _filter(self, z, current, mean, cov, command, age):
+    def _filter(self, z, current, mean, cov, command, age, sensor_age):
         new_mean, new_cov, new_filtered = self.ekf.filter_step(
-            mean, cov, command, z, current, age.clamp_min(0).squeeze(-1)
+            mean, cov, command, z, current, age.clamp_min(0).squeeze(-1), sensor_age=sensor_age
         )
         fresh = age < 0
         mean, cov = self.ekf.start_where(fresh.squeeze(-1), new_mean, new_cov, z, current)
@@ -218,13 +225,30 @@ class OnboardPolicy(nn.Module):
         self._state = (mean, cov, command, torch.where(mask.view(-1, 1), -1.0, age))
 
     @torch.no_grad()
-    def act(self, z: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
+    def act(
+        self, z: torch.Tensor, current: torch.Tensor, sensor_age: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """The command ``(surge m/s, yaw rate rad/s)`` for the readings ``z`` (``(..., 6)``,
         eq. 2) and the current ``(..., 2)`` (DS frame, m/s); also remembered as the command
-        the filter predicts the next step with."""
+        the filter predicts the next step with. ``sensor_age`` ``(..., 3)``: seconds since the
+        USBL, DVL and IMU readings in ``z`` arrived; the filter updates with those of age 0
+        only (``None``: every reading is new; a scenario without a filter ignores them)."""
         z, current = self._check(z, "z", OBS_DIM), self._check(current, "current", 2)
         single = z.dim() == 1
         z, current = z.reshape(-1, OBS_DIM), current.reshape(-1, 2)
+        if sensor_age is not None:
+            sensor_age = self._check(sensor_age, "sensor_age", len(SENSORS))
+            if bool((sensor_age < 0).any()):
+                raise ValueError(f"sensor_age must be >= 0 s, got {sensor_age.tolist()}")
+            if sensor_age.dim() != (1 if single else 2) or sensor_age.numel() != z.shape[0] * len(
+                SENSORS
+            ):
+                raise ValueError(
+                    f"sensor_age must have one row of {len(SENSORS)} ages per vehicle of z, "
+                    f"got shape {tuple(sensor_age.shape)} for z of shape "
+                    f"{(OBS_DIM,) if single else tuple(z.shape)}"
+                )
+            sensor_age = sensor_age.reshape(-1, len(SENSORS))
         if self._state is None:
             self._state = self.initial_state(z.shape[0])
         elif self._state[0].shape[0] != z.shape[0]:
@@ -232,7 +256,7 @@ class OnboardPolicy(nn.Module):
                 f"z has {z.shape[0]} vehicles but the filter runs on "
                 f"{self._state[0].shape[0]}: reset() first"
             )
-        command, *state = self.step(z, current, *self._state)
+        command, *state = self.step(z, current, *self._state, sensor_age)
         self._state = (state[0], state[1], command, state[2])
         return command[0] if single else command
 
@@ -248,16 +272,21 @@ class OnboardPolicy(nn.Module):
         return value
 
 
-def export_onboard(policy: OnboardPolicy, path: str | Path, batch: int = 1) -> Path:
+def export_onboard(
+    policy: OnboardPolicy, path: str | Path, batch: int = 1, *, sensor_age: bool = False
+) -> Path:
     """Write ``policy``'s :class:`OnboardStep` as a ``torch.export`` program (``.pt2``) for
     ``batch`` vehicles: ``torch.export.load(path).module()(z, current, mean, cov, command,
     age)`` runs with torch alone (no dockingrl, TorchRL or tensordict), and AOTInductor can
-    compile it for a C++ control loop. Written atomically."""
+    compile it for a C++ control loop. With ``sensor_age`` the program takes the sensors' ages
+    ``(batch, 3)`` as a seventh input (sensors at their own rates). Written atomically."""
     from dockingrl.io import atomic_write
 
     z = torch.zeros(batch, OBS_DIM)
     z[:, 0] = 20.0
     example = (z, torch.zeros(batch, 2), *policy.initial_state(batch))
+    if sensor_age:
+        example = (*example, torch.zeros(batch, len(SENSORS)))
     step = copy.deepcopy(policy.step).eval().requires_grad_(False)
     with torch.no_grad():
         program = torch.export.export(step, example)
