@@ -640,6 +640,14 @@ class DockingEnv(EnvBase):
         if self.config.realistic:
             return self._step_realistic(action)
         noise = self._sample_noise() if self.config.noise else None
+        out = self._advance(action, noise)
+        out = self._output(**out)
+        if self.check_finite:
+            self._check_finite(out, "step")
+        return out
+
+    def _advance(self, action: torch.Tensor, noise, vehicle=None) -> dict:
+        """Move the simulator's state one :meth:`_transition` on and return its outputs."""
         (
             self._pose,
             self._velocity,
@@ -656,10 +664,8 @@ class DockingEnv(EnvBase):
             self._step_count,
             action,
             noise,
+            vehicle,
         )
-        out = self._output(**out)
-        if self.check_finite:
-            self._check_finite(out, "step")
         return out
 
     def _step_realistic(self, action: torch.Tensor) -> TensorDictBase:
@@ -668,24 +674,7 @@ class DockingEnv(EnvBase):
         drawn as in the paper's task, the rest from :attr:`realism_rng`."""
         cfg = self.config
         noise = self._sample_noise() if cfg.noise else None
-        (
-            self._pose,
-            self._velocity,
-            self._integral,
-            self._previous_error,
-            self._step_count,
-            out,
-        ) = self._transition(
-            self._pose,
-            self._velocity,
-            self._current,
-            self._integral,
-            self._previous_error,
-            self._step_count,
-            action,
-            None,
-            self._vehicle,
-        )
+        out = self._advance(action, None, self._vehicle)
         if cfg.sensor_timing:
             out["observation"] = self._sense(out["observation"], noise)
         elif noise is not None:
