@@ -55,11 +55,9 @@ STILL_TO_SPLIT = {
     "dockingrl/env/config.py",
     "dockingrl/env/docking.py",
     "dockingrl/evaluation.py",
-    "dockingrl/filter_learning.py",
     "dockingrl/grid.py",
     "dockingrl/training.py",
     "dockingrl/transforms/ekf.py",
-    "dockingrl/transforms/filtering.py",
 }
 
 MAX_LINES = 400

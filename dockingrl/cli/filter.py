@@ -33,7 +33,7 @@ from dockingrl.filter_learning import (
 )
 from dockingrl.io import write_json
 from dockingrl.provenance import command_line, footer_text
-from dockingrl.transforms.filtering import RANGE_NOISE_FROM
+from dockingrl.transforms.noise import RANGE_NOISE_FROM
 
 
 def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
