@@ -54,7 +54,6 @@ STILL_TO_SPLIT = {
     "dockingrl/agents/config.py",
     "dockingrl/env/config.py",
     "dockingrl/env/docking.py",
-    "dockingrl/grid.py",
     "dockingrl/training.py",
     "dockingrl/transforms/ekf.py",
 }

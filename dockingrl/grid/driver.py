@@ -1,0 +1,166 @@
+"""The Ray driver of a grid: starts the unfinished trials as Ray tasks, as many at once as the
+CPUs allow, collects the finished ones and stops the running ones on SIGTERM or SIGINT."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from dockingrl.grid.files import Grid, Trial
+from dockingrl.grid.folders import collect_trial, finished_summary, lock_pid
+from dockingrl.grid.trial import run_trial
+from dockingrl.grid.view import GridView
+
+
+@dataclass
+class _Running:
+    trial: Trial
+    started: float
+
+
+def _estimate(grid: Grid, trial: Trial) -> float:
+    """Expected seconds of the trial: the mean of its recipe's finished trials of the grid
+    with the same total (train and final evaluation), else the grid file's estimate."""
+    seen = []
+    for other in grid.trials:
+        if other.recipe != trial.recipe or other.overrides != trial.overrides:
+            continue
+        s = finished_summary(grid, other)
+        if s and "train_wall_clock_s" in s:
+            seen.append(s["train_wall_clock_s"] + s.get("selection_wall_clock_s", 0.0))
+    return 1.1 * sum(seen) / len(seen) if seen else trial.estimate_s
+
+
+def run_grid(
+    grid: Grid,
+    *,
+    address: str | None = None,
+    max_concurrent: int | None = None,
+    hours: float = 0.0,
+    view_every: float = 60.0,
+    stop_after: int = 0,
+) -> dict[str, str]:
+    """Run the grid's unfinished trials on Ray and return each trial's state (``finished``,
+    ``failed``, ``interrupted``, ``pending``).
+
+    Args:
+        address: an existing Ray cluster (``ray.init(address=...)``); None starts a local one.
+        max_concurrent: trials at once (default: the cluster's CPUs // ``grid.threads``).
+        hours: if > 0, start only trials expected to end within this many hours of the grid's
+            start (:func:`_estimate`); the others stay pending for the next run.
+        view_every: seconds between two views of the grid.
+        stop_after: if > 0, start no more trials after this many have ended in this call.
+    """
+    import ray
+
+    grid.out.mkdir(parents=True, exist_ok=True)
+    states = {t.name: ("finished" if finished_summary(grid, t) else "pending") for t in grid.trials}
+    for trial in grid.trials:  # finished in a run folder, not yet collected
+        if states[trial.name] == "finished" and grid.collect:
+            dest = grid.collect / trial.name
+            if (
+                not (dest / "summary.json").exists()
+                and (grid.run_dir(trial) / "summary.json").exists()
+            ):
+                collect_trial(grid.run_dir(trial), dest)
+    todo = [t for t in grid.trials if states[t.name] != "finished"]
+    view = GridView(grid, view_every)
+    notes: dict[str, str] = {}
+    if not todo:
+        view.show(states, {}, notes, force=True)
+        return states
+    started_at = time.time()
+    if address:
+        ray.init(address=address, log_to_driver=False, configure_logging=False)
+    else:
+        ray.init(
+            num_cpus=os.cpu_count(),
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+        )
+    cpus = int(ray.cluster_resources().get("CPU", 1))
+    limit = max_concurrent or max(1, cpus // grid.threads)
+    # one process per trial: it runs (and its summary records) the code of its own start
+    task = ray.remote(num_cpus=grid.threads, max_retries=0, max_calls=1)(run_trial)
+    running: dict[Any, _Running] = {}
+    ended = 0
+    stop = {"signum": None, "stopping": False}
+
+    def on_signal(signum, frame):
+        if stop["stopping"]:
+            raise KeyboardInterrupt(f"second {signal.Signals(signum).name}: stopping now")
+        stop["signum"] = signum
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        while todo or running:
+            while not stop["signum"] and todo and len(running) < limit:
+                if stop_after and ended + len(running) >= stop_after:
+                    break
+                left = hours * 3600 - (time.time() - started_at) if hours > 0 else float("inf")
+                fits = [t for t in todo if _estimate(grid, t) <= left]
+                if not fits:
+                    break
+                trial = fits[0]
+                todo.remove(trial)
+                ref = task.remote(trial, str(grid.out), grid.threads)
+                running[ref] = _Running(trial, time.time())
+                states[trial.name] = "running"
+                notes.pop(trial.name, None)
+                view.show(states, running, notes, force=True)
+            if not running:
+                break
+            if stop["signum"] and not stop["stopping"]:
+                stop["stopping"] = True
+                print(
+                    f"{signal.Signals(stop['signum']).name}: the running trials checkpoint and "
+                    "stop (again to stop at once); run the same command to resume",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                _stop_trials(grid, running, local=not address)
+                todo.clear()
+            ready, _ = ray.wait(list(running), num_returns=1, timeout=min(view_every, 5.0))
+            for ref in ready:
+                r = running.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:  # the worker died
+                    result = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+                states[r.trial.name] = result["status"]
+                ended += 1
+                if result["status"] == "finished":
+                    if grid.collect:
+                        collect_trial(grid.run_dir(r.trial), grid.collect / r.trial.name)
+                    s = finished_summary(grid, r.trial) or {}
+                    notes[r.trial.name] = f"success {s.get('success_rate', float('nan')):.1f} %"
+                else:
+                    notes[r.trial.name] = result["error"].splitlines()[0][:160]
+                view.show(states, running, notes, force=True)
+            view.show(states, running, notes)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        ray.shutdown()
+    return states
+
+
+def _stop_trials(grid: Grid, running: dict, local: bool) -> None:
+    """Ask the running trials to checkpoint and stop: SIGTERM to the process named in each run
+    folder's lock (local trials); trials elsewhere are cancelled by Ray."""
+    import ray
+
+    for ref, r in running.items():
+        pid = lock_pid(grid.run_dir(r.trial)) if local else None
+        if pid is not None:
+            try:
+                os.kill(pid, signal.SIGTERM)
+                continue
+            except OSError:
+                pass
+        ray.cancel(ref, force=True)

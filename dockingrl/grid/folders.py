@@ -1,0 +1,81 @@
+"""The state of a trial, from its run folder and its ``collect`` folder: finished or not, how
+far it has come, whether its saved config is the grid's, and the copy of a finished trial's
+small files."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+from dockingrl.grid.files import Grid, Trial
+
+#: a finished trial's files that ``collect`` keeps (small; the run folder keeps the rest)
+COLLECTED = ("config.json", "summary.json", "eval.json", "curves.csv", "policy.pt")
+#: fields a trial's saved config may differ in from the grid's without being another trial
+_HOW_NOT_WHAT = ("threads", "device", "out", "run_name", "logger", "wandb_online", "compile")
+
+
+def read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def finished_summary(grid: Grid, trial: Trial) -> dict | None:
+    """The ``summary.json`` of the trial if it finished (in its run folder or ``collect``)."""
+    for folder in (grid.run_dir(trial), grid.collect and grid.collect / trial.name):
+        if folder and (summary := read_json(folder / "summary.json")) is not None:
+            return summary
+    return None
+
+
+def config_mismatch(saved: dict, wanted: dict) -> list[str]:
+    """The fields (beyond where and how fast it runs) in which a saved config differs from
+    the one the grid asks for now."""
+    keys = (set(saved) | set(wanted)) - set(_HOW_NOT_WHAT)
+    norm = {k: (list(v) if isinstance(v, tuple) else v) for k, v in wanted.items()}
+    return sorted(k for k in keys if saved.get(k) != norm.get(k))
+
+
+def progress(run_dir: Path) -> dict:
+    """What a run folder shows of a trial under way: env steps and the latest periodic
+    evaluation's success rate, from the end of its ``curves.csv``."""
+    path = run_dir / "curves.csv"
+    out: dict = {"steps": 0, "success": None}
+    try:
+        with path.open("rb") as f:
+            f.seek(max(0, path.stat().st_size - 16384))
+            lines = f.read().decode(errors="replace").splitlines()[1:]
+    except OSError:
+        return out
+    for line in lines:
+        parts = line.split(",")
+        if len(parts) != 3 or not parts[0].isdigit():
+            continue
+        out["steps"] = max(out["steps"], int(parts[0]))
+        if parts[1] == "eval/success_rate":
+            out["success"] = float(parts[2])
+    return out
+
+
+def collect_trial(run_dir: Path, dest: Path) -> None:
+    """Copy a finished trial's :data:`COLLECTED` files into ``dest``, whole or not at all (a
+    sibling folder, then one rename)."""
+    tmp = dest.with_name(dest.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in COLLECTED:
+        if (run_dir / name).exists():
+            shutil.copy2(run_dir / name, tmp / name)
+    shutil.rmtree(dest, ignore_errors=True)
+    tmp.rename(dest)
+
+
+def lock_pid(run_dir: Path) -> int | None:
+    try:
+        text = (run_dir / "run.lock").read_text().strip()
+        return int(text.splitlines()[-1]) if text else None
+    except (OSError, ValueError):
+        return None
