@@ -1,6 +1,6 @@
 """Command-line argument checking for ``dockingrl``: a parser whose errors are one line, the
-error that a command raises for a command line it cannot run, and argparse types that refuse
-out-of-range numbers as usage errors."""
+error that a command raises for a command line it cannot run, argparse types that refuse
+out-of-range numbers as usage errors, and the policy that ``--policy`` and its options name."""
 
 from __future__ import annotations
 
@@ -90,3 +90,19 @@ def torch_device(text: str) -> str:
     elif parsed.type != "cpu":
         raise argparse.ArgumentTypeError(f"{text!r}: expected cpu, cuda[:N] or mps")
     return text
+
+
+def policy_from_args(args: argparse.Namespace) -> tuple:
+    """The policy that ``--policy`` names (``--use-filter``, on ``--device``; torch set to
+    ``--threads`` threads) and the scenario to run it in: ``--scenario``, else the one it was
+    trained in, else ``noise``. Returns :func:`~dockingrl.policies.load_policy`'s ``(policy,
+    name, scenario, options, trained)`` with that scenario."""
+    import torch
+
+    from dockingrl.policies import load_policy
+
+    torch.set_num_threads(args.threads)
+    policy, name, trained_scenario, options, trained = load_policy(
+        args.policy, use_filter=args.use_filter, device=args.device
+    )
+    return policy, name, args.scenario or trained_scenario or "noise", options, trained

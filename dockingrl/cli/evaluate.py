@@ -7,19 +7,18 @@ import argparse
 import time
 from pathlib import Path
 
-import torch
-
 from dockingrl.cli.arguments import (
     COUNT,
     NON_NEGATIVE,
     NON_NEGATIVE_INT,
     POSITIVE,
     UsageError,
+    policy_from_args,
     torch_device,
 )
 from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
 from dockingrl.io import write_json
-from dockingrl.policies import FIGURE_10_CASES, evaluation_world, load_policy
+from dockingrl.policies import FIGURE_10_CASES, evaluation_world
 from dockingrl.provenance import command_line, footer_text
 from dockingrl.scenarios import SCENARIOS, mirror_signs
 
@@ -28,11 +27,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """``dockingrl eval``: a policy's evaluation, success map, trajectories and video."""
     from dockingrl.plots import plot_success_map, plot_trajectories
 
-    torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options, trained = load_policy(
-        args.policy, use_filter=args.use_filter, device=args.device
-    )
-    scenario = args.scenario or trained_scenario or "noise"
+    policy, name, scenario, options, trained = policy_from_args(args)
     if trained:
         from dockingrl.onboard import check_env_layout
 

@@ -133,6 +133,16 @@ def _fit_options(args: argparse.Namespace, objective: str) -> FilterFit:
     )
 
 
+def _noise_models(args: argparse.Namespace) -> dict:
+    """The noise models of the learned filters the command line asks for: ``manoeuvre_noise``,
+    ``context_noise`` and ``range_noise_from``."""
+    return {
+        "manoeuvre_noise": args.manoeuvre_noise,
+        "context_noise": args.context_noise,
+        "range_noise_from": args.range_noise_from,
+    }
+
+
 def cmd_learn_filter(args: argparse.Namespace) -> int:
     """``dockingrl learn-filter``: one filter fitted and scored on held-out rollouts."""
     from dockingrl.training import RunLogger
@@ -147,10 +157,8 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
         _fit_options(args, args.objective),
         out,
         noise_scale=args.noise_scale,
-        manoeuvre_noise=args.manoeuvre_noise,
-        context_noise=args.context_noise,
-        range_noise_from=args.range_noise_from,
         log=logger.log,
+        **_noise_models(args),
         command=command_line(),
     )
     logger.finish({"objective": args.objective})
@@ -175,11 +183,9 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
         _fit_options(args, "nll"),
         args.out,
         mismatch=args.mismatch,
-        manoeuvre_noise=args.manoeuvre_noise,
-        context_noise=args.context_noise,
-        range_noise_from=args.range_noise_from,
         context_epochs=args.context_epochs,
         command=command_line(),
+        **_noise_models(args),
     )
     print(text)
     return 0

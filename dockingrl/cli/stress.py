@@ -5,22 +5,16 @@ from __future__ import annotations
 import argparse
 import time
 
-import torch
-
-from dockingrl.cli.arguments import COUNT, POSITIVE
+from dockingrl.cli.arguments import COUNT, POSITIVE, policy_from_args
 from dockingrl.evaluation import describe_machine
-from dockingrl.policies import load_policy, trained_filter_options
+from dockingrl.policies import trained_filter_options
 from dockingrl.provenance import command_line
 from dockingrl.stress import LEVELS, stress_ladder, stress_table, write_stress
 
 
 def cmd_stress(args: argparse.Namespace) -> int:
     """``dockingrl stress``: a policy on the stress ladder's levels."""
-    torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options, trained = load_policy(
-        args.policy, use_filter=args.use_filter, device=args.device
-    )
-    scenario = args.scenario or trained_scenario or "noise"
+    policy, name, scenario, options, trained = policy_from_args(args)
     if trained:
         options = trained_filter_options(trained, scenario, options)
     levels = tuple(args.levels.split(",")) if args.levels else tuple(LEVELS)
