@@ -3,8 +3,9 @@
 Usage: ``python bench/gym_throughput.py [--sizes 1 64 4096] [--seconds 3] [--threads 1]
 [--compile]``
 
-Rows: the single env (``gymnasium.make("dockingrl/Docking-v0", scenario=...)``, its own
-step path without TensorDict), the vector env (``gymnasium.make_vec(..., num_envs=n)``,
+Rows: the single env (``gymnasium.make("dockingrl/Docking-v0", scenario=...)``) with
+``fast=True`` (the step and the filter on Python floats) and with its tensor step (the
+batched env's transition on one env, without TensorDict), the vector env (``gymnasium.make_vec(..., num_envs=n)``,
 NEXT_STEP autoreset) and the TorchRL pipeline (``dockingrl.make_env(scenario, n)``, a
 ``step_and_maybe_reset`` per step as a collector does), for ``noise`` and ``compound`` (EKF
 included). Actions are uniform in the bounds, drawn before the clock starts. ``--compile``
@@ -44,8 +45,10 @@ def _timed(step, seconds: float, batch: int) -> float:
     return steps * batch / (time.perf_counter() - start)
 
 
-def single_env(scenario: str, seconds: float, compile: bool = False) -> float:
-    env = gymnasium.make("dockingrl/Docking-v0", scenario=scenario, compile=compile).unwrapped
+def single_env(scenario: str, seconds: float, compile: bool = False, fast: bool = False) -> float:
+    env = gymnasium.make(
+        "dockingrl/Docking-v0", scenario=scenario, compile=compile, fast=fast
+    ).unwrapped
     env.reset(seed=0)
     actions = _actions(1)[:, 0]
     count = iter(range(1 << 62))
@@ -96,8 +99,10 @@ def main(argv=None) -> None:
     rows: list[tuple[str, list[str]]] = []
     empty = ["" for _ in args.sizes[1:]]
     for scenario in SCENARIOS:
+        fast = single_env(scenario, args.seconds, fast=True)
+        rows.append((f"single env, fast=True ({scenario})", [f"{fast:,.0f}", *empty]))
         single = single_env(scenario, args.seconds)
-        rows.append((f"single env, gymnasium.make ({scenario})", [f"{single:,.0f}", *empty]))
+        rows.append((f"single env, tensor step ({scenario})", [f"{single:,.0f}", *empty]))
         if args.compile:
             compiled = single_env(scenario, args.seconds, compile=True)
             rows.append((f"single env, compile=True ({scenario})", [f"{compiled:,.0f}", *empty]))

@@ -1,7 +1,8 @@
-"""Vehicle model and sensor geometry of the docking task, as batched torch functions.
+"""Vehicle model and sensor geometry of the docking task.
 
-Every function works on tensors of any leading batch shape and is differentiable where the
-maths is. Frames: the world frame is the docking-station (DS) frame, DS at the origin, funnel
+Every function works on tensors of any leading batch shape (differentiable where the maths is)
+and on one env's Python floats, vectors as tuples (:mod:`dockingrl.env.arrays`); an
+element-wise function takes one axis's floats. Frames: the world frame is the docking-station (DS) frame, DS at the origin, funnel
 mouth towards -x; ``alpha`` is the AUV heading in that frame (0 = pointing at the DS along +x).
 Body-frame velocities ``(u, v, r)`` are surge, sway and yaw rate through the water.
 """
@@ -12,12 +13,14 @@ import math
 
 import torch
 
+from dockingrl.env.arrays import ops
+
 TWO_PI = 2.0 * math.pi
 
 
 def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
     """Wrap angles to (-pi, pi]."""
-    return math.pi - torch.remainder(math.pi - angle, TWO_PI)
+    return math.pi - ops(angle).remainder(math.pi - angle, TWO_PI)
 
 
 def clip_action(action: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
@@ -53,18 +56,19 @@ def pid_thrust(
     Returns:
         ``(tau, integral)``: the clipped thrust ``(..., k)`` and the updated integral.
     """
+    xp = ops(error)
     integral = integral + error * dt
-    limit = max_thrust / ki.clamp_min(1e-12)
-    integral = torch.maximum(torch.minimum(integral, limit), -limit)
+    limit = max_thrust / xp.clamp_min(ki, 1e-12)
+    integral = xp.maximum(xp.minimum(integral, limit), -limit)
     tau = kp * error + ki * integral + kd * (error - previous_error) / dt
-    return tau.clamp(-max_thrust, max_thrust), integral
+    return xp.clamp(tau, -max_thrust, max_thrust), integral
 
 
 def hydrodynamic_damping(
     velocity: torch.Tensor, linear: float | torch.Tensor, quadratic: float | torch.Tensor
 ) -> torch.Tensor:
     """Damping force of eq. 36: ``d = K_dl * v + K_qdl * |v| * v``."""
-    return linear * velocity + quadratic * velocity.abs() * velocity
+    return linear * velocity + quadratic * abs(velocity) * velocity
 
 
 def velocity_update(
@@ -85,9 +89,10 @@ def velocity_update(
         inertia: ``(3,)`` mass (surge, sway) and yaw inertia, or ``(..., 3)`` per env.
         linear_damping, quadratic_damping: numbers, or ``(..., 1)`` tensors per env.
     """
+    xp = ops(velocity)
     damping = hydrodynamic_damping(velocity, linear_damping, quadratic_damping)
-    acceleration = ((tau - damping) / inertia).clamp(-max_acceleration, max_acceleration)
-    return (velocity + dt * acceleration).clamp(-max_velocity, max_velocity)
+    acceleration = xp.clamp((tau - damping) / inertia, -max_acceleration, max_acceleration)
+    return xp.clamp(velocity + dt * acceleration, -max_velocity, max_velocity)
 
 
 def pose_update(
@@ -103,13 +108,15 @@ def pose_update(
     Returns:
         The next pose, heading wrapped to (-pi, pi].
     """
-    x, y, alpha = pose.unbind(-1)
-    u, v, r = velocity.unbind(-1)
-    cos, sin = torch.cos(alpha), torch.sin(alpha)
-    x = x + (cos * u - sin * v + current[..., 0]) * dt
-    y = y + (sin * u + cos * v + current[..., 1]) * dt
+    xp = ops(pose)
+    x, y, alpha = xp.unbind(pose, -1)
+    u, v, r = xp.unbind(velocity, -1)
+    oc_x, oc_y = xp.unbind(current, -1)
+    cos, sin = xp.cos(alpha), xp.sin(alpha)
+    x = x + (cos * u - sin * v + oc_x) * dt
+    y = y + (sin * u + cos * v + oc_y) * dt
     alpha = wrap_angle(alpha + r * dt)
-    return torch.stack((x, y, alpha), dim=-1)
+    return xp.stack((x, y, alpha), dim=-1)
 
 
 def ground_velocity_body(
@@ -123,8 +130,9 @@ def ground_velocity_body(
 
     ``(vx, vy) = (u, v) + R(alpha)^T oc``; ``current`` holds ``(oc_x, oc_y)`` along ``dim``.
     """
-    cos, sin = torch.cos(alpha), torch.sin(alpha)
-    oc_x, oc_y = current.unbind(dim)
+    xp = ops(alpha)
+    cos, sin = xp.cos(alpha), xp.sin(alpha)
+    oc_x, oc_y = xp.unbind(current, dim)
     vx = surge + oc_x * cos + oc_y * sin
     vy = sway + oc_y * cos - oc_x * sin
     return vx, vy
@@ -156,12 +164,13 @@ def observation_from_state(
     Returns:
         The observation, angles wrapped to (-pi, pi].
     """
-    rho = torch.sqrt(x * x + y * y)
+    xp = ops(x)
+    rho = xp.sqrt(x * x + y * y)
     if min_range > 0:
-        rho = rho.clamp_min(min_range)
-    psi = wrap_angle(torch.atan2(-y, -x) - alpha)
+        rho = xp.clamp_min(rho, min_range)
+    psi = wrap_angle(xp.atan2(-y, -x) - alpha)
     vx, vy = ground_velocity_body(alpha, surge, sway, current, dim)
-    return torch.stack((rho, psi, wrap_angle(alpha), vx, vy, yaw_rate), dim=dim)
+    return xp.stack((rho, psi, wrap_angle(alpha), vx, vy, yaw_rate), dim=dim)
 
 
 def noisy_observation(
@@ -172,9 +181,13 @@ def noisy_observation(
     ``noise_std`` holds the six sigmas, the first being a fraction of the true range; the
     bearing and heading are wrapped back to (-pi, pi] afterwards.
     """
-    scale = torch.cat((observation[..., :1], torch.ones_like(observation[..., 1:])), dim=-1)
-    noisy = observation + noise_std * scale * standard_normal
-    return torch.cat((noisy[..., :1], wrap_angle(noisy[..., 1:3]), noisy[..., 3:]), dim=-1)
+    xp = ops(observation)
+    rho = xp.unbind(observation, -1)[0]
+    one = xp.ones_like(rho)
+    scale = xp.stack((rho, one, one, one, one, one), dim=-1)
+    noise = xp.multiply(xp.multiply(noise_std, scale), standard_normal)
+    rho, psi, alpha, vx, vy, w = xp.unbind(xp.add(observation, noise), -1)
+    return xp.stack((rho, wrap_angle(psi), wrap_angle(alpha), vx, vy, w), dim=-1)
 
 
 def pose_from_observation(observation: torch.Tensor) -> torch.Tensor:

@@ -1,8 +1,14 @@
 """A single-env Gymnasium view of :class:`DockingEnv` (numpy in, numpy out), stepped without the
-TorchRL machinery: each step calls the batched env's own transition function (the pure
-functions of :mod:`dockingrl.env.dynamics` and :mod:`dockingrl.env.reward`) on tensors of one
-env, with no ``TensorDict`` and no spec checks, so that it gives the same numbers as
-``DockingEnv(1)`` at a fraction of the cost.
+TorchRL machinery, in one of two ways:
+
+- ``fast=False``: each step calls the batched env's own transition function on tensors of one
+  env, with no ``TensorDict`` and no spec checks: the same numbers as ``DockingEnv(1)``, bit
+  for bit;
+- ``fast=True``: each step calls :func:`dockingrl.env.transition.paper_step`, the same equation
+  functions (:mod:`dockingrl.env.dynamics`, :mod:`dockingrl.env.reward`) on Python floats, with
+  no tensor at all but the sensor noise, drawn from the env's own generator as ``DockingEnv(1)``
+  draws it: the same numbers up to float32 rounding (the floats are float64), several times
+  faster.
 
 The registered ``dockingrl/Docking-v0`` (:mod:`dockingrl.gym`) builds on it with the paper's
 four scenarios::
@@ -24,6 +30,7 @@ from gymnasium import spaces
 
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.docking import ACTION_DIM, OBSERVATION_DIM, DockingEnv
+from dockingrl.env.transition import SimulatorState, paper_step
 
 #: the entries of ``info`` read from the env's outputs as Python numbers
 _INFO_NUMBERS = (("success", bool), ("contact_score", float), ("contact_speed", float))
@@ -71,10 +78,11 @@ def validated_action(action, config: DockingConfig) -> np.ndarray:
         )
     if array.shape != (ACTION_DIM,):
         raise ValueError(f"action must be {expected}, got shape {array.shape}")
-    array = array.astype(np.float64)
-    if not np.isfinite(array).all():
-        raise ValueError(f"action must be {expected}, got {array.tolist()}")
-    return np.clip(array, config.action_low, config.action_high).astype(np.float32)
+    values = array.astype(np.float64).tolist()
+    if not all(map(math.isfinite, values)):
+        raise ValueError(f"action must be {expected}, got {values}")
+    clipped = map(min, map(max, values, config.action_low), config.action_high)
+    return np.array(tuple(clipped), dtype=np.float32)
 
 
 class DockingGymEnv(gymnasium.Env):
@@ -96,6 +104,9 @@ class DockingGymEnv(gymnasium.Env):
             ``config`` (the base env of a :func:`dockingrl.make_env` pipeline).
         compile: ``torch.compile`` the step (:meth:`_tensor_step`): the first step compiles
             (about 20 s on a 2-core CPU), then a step costs several times less.
+        fast: step on Python floats (:func:`~dockingrl.env.transition.paper_step`) instead of
+            tensors: the same functions and noise draws, the numbers equal to float32 rounding
+            (see the module's docstring). Not with ``compile``.
     """
 
     metadata = {"render_modes": []}
@@ -106,6 +117,7 @@ class DockingGymEnv(gymnasium.Env):
         *,
         simulator: DockingEnv | None = None,
         compile: bool = False,
+        fast: bool = False,
     ) -> None:
         if simulator is None:
             simulator = DockingEnv(1, config=config, seed=0)
@@ -126,14 +138,35 @@ class DockingGymEnv(gymnasium.Env):
         #: a scenario's own state (the filter's), carried from step to step
         self._extra: tuple = ()
         self._step_function = self._tensor_step
+        if compile and fast:
+            raise ValueError(
+                "compile=True compiles the tensor step, fast=True steps on floats: choose one"
+            )
         if compile:
             self._step_function = torch.compile(self._tensor_step, dynamic=False)
+        self.fast = bool(fast)
+        #: the fast path's constants as floats (the simulator's float32 values) and its state
+        sim = simulator
+        self._gains = tuple(tuple(t.tolist()) for t in (sim._kp, sim._ki, sim._kd, sim._inertia))
+        self._noise_std = tuple(sim._noise_std.tolist())
+        self._state: SimulatorState | None = None
+        #: the last reset's or step's ``info``
+        self._last_info: dict[str, Any] | None = None
 
     # -- the step as a pure tensor function, and the hooks of the scenarios ---------------
     def _observe_reset(self, out: Mapping[str, torch.Tensor]) -> torch.Tensor:
         """The policy's ``(1, k)`` observation after a reset (a scenario also starts its own
         state, :attr:`_extra`, here)."""
         return out["observation"]
+
+    def _start_fast(self) -> None:
+        """Carry a scenario's own state (the filter's) from :attr:`_extra` over to floats, after
+        a reset of the fast path."""
+
+    def _observe_fast(self, observation: tuple, action: tuple) -> tuple:
+        """The policy's observation after a fast step from the env's ``observation`` under
+        the applied ``action`` (a scenario steps its own state here)."""
+        return observation
 
     def _tensor_step(
         self, state: tuple, extra: tuple, action: torch.Tensor, noise: torch.Tensor | None
@@ -207,14 +240,48 @@ class DockingGymEnv(gymnasium.Env):
             self._env.set_initial_state(None, None)
             observation = self._observe_reset(out)
         self._td = out
-        return observation[0].numpy().copy(), self._info(out)
+        if self.fast:
+            sim = self._env
+            entries = (sim._pose, sim._velocity, sim._current, sim._integral, sim._previous_error)
+            floats = [value for t in entries for value in t[0].tolist()]
+            self._state = SimulatorState(*floats, 0)
+            self._start_fast()
+        self._last_info = self._info(out)
+        return observation[0].numpy().copy(), self._last_info
 
     def _action(self, action) -> np.ndarray:
         return validated_action(action, self.config)
 
+    def _fast_step(self, action):
+        applied = tuple(self._action(action).tolist())
+        sim = self._env
+        noise = tuple(sim._sample_noise()[0].tolist()) if self.config.noise else None
+        state, out = paper_step(
+            self.config, self._gains, self._state, applied, sim.step_reward, noise, self._noise_std
+        )
+        self._state = state
+        observation = self._observe_fast(out.observation, applied)
+        self._last_info = info = {
+            "ocean_current": np.array((state.oc_x, state.oc_y), dtype=np.float32),
+            "true_state": np.array(state[:6], dtype=np.float32),
+            "step_count": state.step_count,
+            "success": bool(out.success),
+            "contact_score": float(out.contact_score),
+            "contact_speed": float(out.contact_speed),
+        }
+        return (
+            np.array(observation, dtype=np.float32),
+            float(out.reward),
+            bool(out.terminated),
+            bool(out.truncated),
+            info,
+        )
+
     def step(self, action):
-        if self._td is None:
+        if self._last_info is None:
             raise RuntimeError("call reset() before step()")
+        if self.fast:
+            return self._fast_step(action)
         applied = torch.from_numpy(self._action(action)).reshape(1, ACTION_DIM)
         sim = self._env
         with torch.inference_mode():
@@ -227,10 +294,11 @@ class DockingGymEnv(gymnasium.Env):
             setattr(sim, name, value)
         out["ocean_current"], out["step_count"] = state[2], state[5]
         self._td = out
+        self._last_info = self._info(out)
         return (
             observation[0].numpy().copy(),
             float(out["reward"]),
             bool(out["terminated"]),
             bool(out["truncated"]),
-            self._info(out),
+            self._last_info,
         )

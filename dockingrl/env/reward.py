@@ -1,4 +1,5 @@
-"""Reward terms of the docking task (Sec. 3.2, eqs. 4-12), batched torch functions."""
+"""Reward terms of the docking task (Sec. 3.2, eqs. 4-12), on tensors of any batch or on one
+env's Python floats (:mod:`dockingrl.env.arrays`)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import math
 
 import torch
 
+from dockingrl.env.arrays import ops
 from dockingrl.env.dynamics import wrap_angle
 
 
@@ -16,7 +18,7 @@ def distance_reward(rho: torch.Tensor, max_dist: float) -> torch.Tensor:
 
 def thrust_reward(tau: torch.Tensor, thrust_weight: float) -> torch.Tensor:
     """Eq. 5: ``r_tau = -||tau|| / w_tau`` over the (surge, yaw) command ``tau`` ``(..., 2)``."""
-    return -torch.linalg.vector_norm(tau, dim=-1) / thrust_weight
+    return -ops(tau).norm(tau) / thrust_weight
 
 
 def entry_velocity_reward(
@@ -30,8 +32,9 @@ def entry_velocity_reward(
 
     ``-w_vel * max(V - v_max, 0) * (d_appro - rho) / d_appro`` when ``rho < d_appro``, else 0.
     """
-    excess = (speed - speed_max).clamp_min(0.0)
-    closeness = ((approach_distance - rho) / approach_distance).clamp_min(0.0)
+    xp = ops(speed)
+    excess = xp.clamp_min(speed - speed_max, 0.0)
+    closeness = xp.clamp_min((approach_distance - rho) / approach_distance, 0.0)
     return -weight * excess * closeness
 
 
@@ -50,11 +53,12 @@ def contact_score(
     (eq. 10). Both angles are wrapped to (-pi, pi] so that a heading just across +-pi scores
     like its twin. ``0 < g <= 1`` when the AUV enters the funnel, ``g <= 0`` when it misses.
     """
-    alpha_0 = wrap_angle(torch.atan2(y, x) - math.pi)
+    xp = ops(x)
+    alpha_0 = wrap_angle(xp.atan2(y, x) - math.pi)
     e_alpha = wrap_angle(alpha - alpha_0)
-    aligned = torch.sign(e_alpha) == torch.sign(y)
-    weight = torch.where(aligned, aligned_weight, misaligned_weight)
-    return 1.0 - weight * e_alpha.abs() * (1.0 + alpha_0.abs())
+    aligned = xp.sign(e_alpha) == xp.sign(y)
+    weight = xp.where(aligned, aligned_weight, misaligned_weight)
+    return 1.0 - weight * abs(e_alpha) * (1.0 + abs(alpha_0))
 
 
 def contact_reward(score: torch.Tensor, contact_weight: float) -> torch.Tensor:

@@ -11,7 +11,9 @@ covariances too, which is what lets :class:`~dockingrl.transforms.EKFTransform` 
 Implementation note: thousands of 5 x 5 filters are small matrices, for which batched matrix
 kernels and broadcasting over a size-5 innermost dimension are slow on a CPU. Internally the
 filter therefore runs "batch-last" (``mean`` as ``(5, N)``, ``cov`` as ``(5, 5, N)``), where every
-matrix entry is a contiguous vector over the envs, and converts at the boundary.
+matrix entry is a contiguous vector over the envs, and converts at the boundary. Written with
+the operations of :mod:`dockingrl.env.arrays`, the same batch-last functions also run on one
+env's Python floats (``mean`` a tuple of 5, ``cov`` a tuple of 5 rows): :func:`filter_entries`.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from collections.abc import Sequence
 
 import torch
 
+from dockingrl.env.arrays import ops
 from dockingrl.env.dynamics import observation_from_state, pose_from_observation, wrap_angle
 from dockingrl.env.realism import SENSOR_OF_ENTRY, SENSORS
 
@@ -46,7 +49,8 @@ CHI2_2DOF_999 = 13.816
 # --- layout helpers ----------------------------------------------------------------------------
 def _stack_matrix(rows: Sequence[Sequence[torch.Tensor]], batch_last: bool) -> torch.Tensor:
     if batch_last:
-        return torch.stack([torch.stack(list(row), dim=0) for row in rows], dim=0)
+        xp = ops(rows[0][0])
+        return xp.stack([xp.stack(row, dim=0) for row in rows], dim=0)
     return torch.stack([torch.stack(list(row), dim=-1) for row in rows], dim=-2)
 
 
@@ -72,24 +76,27 @@ def _matrix_from_last(m: torch.Tensor, batch_shape: torch.Size) -> torch.Tensor:
 
 
 def _symmetric(matrix: torch.Tensor, batch_last: bool = False) -> torch.Tensor:
-    dims = (0, 1) if batch_last else (-1, -2)
-    return 0.5 * (matrix + matrix.transpose(*dims))
+    if batch_last:
+        return ops(matrix).symmetric(matrix)
+    return 0.5 * (matrix + matrix.transpose(-1, -2))
 
 
 def _wrap_heading(mean: torch.Tensor, dim: int) -> torch.Tensor:
-    x, y, alpha, nu, w = mean.unbind(dim)
-    return torch.stack((x, y, wrap_angle(alpha), nu, w), dim=dim)
+    xp = ops(mean)
+    x, y, alpha, nu, w = xp.unbind(mean, dim)
+    return xp.stack((x, y, wrap_angle(alpha), nu, w), dim=dim)
 
 
 # --- the model: eqs. 24-27 ---------------------------------------------------------------------
 def _motion_model(state, action, current, dt, k_v, k_w, dim):
-    x, y, alpha, nu, w = state.unbind(dim)
-    v_d, w_d = action.unbind(dim)
-    oc_x, oc_y = current.unbind(dim)
-    return torch.stack(
+    xp = ops(state)
+    x, y, alpha, nu, w = xp.unbind(state, dim)
+    v_d, w_d = xp.unbind(action, dim)
+    oc_x, oc_y = xp.unbind(current, dim)
+    return xp.stack(
         (
-            x + (torch.cos(alpha) * nu + oc_x) * dt,
-            y + (torch.sin(alpha) * nu + oc_y) * dt,
+            x + (xp.cos(alpha) * nu + oc_x) * dt,
+            y + (xp.sin(alpha) * nu + oc_y) * dt,
             wrap_angle(alpha + w * dt),
             nu + k_v * (v_d - nu) * dt,
             w + k_w * (w_d - w) * dt,
@@ -113,7 +120,8 @@ def motion_model(
 def _motion_jacobian_entries(alpha, nu, dt, k_v, k_w):
     """The entries of eq. 25 that are not 0 or 1: ``A[0, 2], A[0, 3], A[1, 2], A[1, 3]``
     (tensors), ``A[2, 4], A[3, 3], A[4, 4]`` (numbers)."""
-    cos, sin = torch.cos(alpha), torch.sin(alpha)
+    xp = ops(alpha)
+    cos, sin = xp.cos(alpha), xp.sin(alpha)
     return (-sin * nu * dt, cos * dt, cos * nu * dt, sin * dt), (dt, 1 - k_v * dt, 1 - k_w * dt)
 
 
@@ -139,23 +147,24 @@ def _apply_motion_jacobian(A, P):
     """``A @ P`` for the sparse ``A`` of eq. 25 given by its entries, batch-last ``P``
     ``(5, c, N)``: row operations instead of a dense product."""
     (a02, a03, a12, a13), (a24, a33, a44) = A
-    p0, p1, p2, p3, p4 = P.unbind(0)
-    a02, a03, a12, a13 = (a.unsqueeze(0) for a in (a02, a03, a12, a13))
-    return torch.stack(
+    xp = ops(P)
+    p0, p1, p2, p3, p4 = xp.unbind(P, 0)
+    return xp.stack(
         (
-            p0 + a02 * p2 + a03 * p3,
-            p1 + a12 * p2 + a13 * p3,
-            p2 + a24 * p4,
-            a33 * p3,
-            a44 * p4,
+            xp.add_scaled(p0, p2, a02, p3, a03),
+            xp.add_scaled(p1, p2, a12, p3, a13),
+            xp.add_scaled(p2, p4, a24),
+            xp.multiply(p3, a33),
+            xp.multiply(p4, a44),
         ),
         dim=0,
     )
 
 
 def _measurement_function(state, current, dim):
-    x, y, alpha, nu, w = state.unbind(dim)
-    return observation_from_state(x, y, alpha, nu, torch.zeros_like(nu), w, current, MIN_RANGE, dim)
+    xp = ops(state)
+    x, y, alpha, nu, w = xp.unbind(state, dim)
+    return observation_from_state(x, y, alpha, nu, xp.zeros_like(nu), w, current, MIN_RANGE, dim)
 
 
 def measurement_function(mean: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
@@ -166,12 +175,13 @@ def measurement_function(mean: torch.Tensor, current: torch.Tensor) -> torch.Ten
 
 def _measurement_jacobian(state, current, batch_last):
     d = 0 if batch_last else -1
-    x, y, alpha = state.unbind(d)[:3]
-    oc_x, oc_y = current.unbind(d)
-    rho2 = (x * x + y * y).clamp_min(MIN_RANGE**2)
-    rho = torch.sqrt(rho2)
-    cos, sin = torch.cos(alpha), torch.sin(alpha)
-    zero, one = torch.zeros_like(x), torch.ones_like(x)
+    xp = ops(state)
+    x, y, alpha = xp.unbind(state, d)[:3]
+    oc_x, oc_y = xp.unbind(current, d)
+    rho2 = xp.clamp_min(x * x + y * y, MIN_RANGE**2)
+    rho = xp.sqrt(rho2)
+    cos, sin = xp.cos(alpha), xp.sin(alpha)
+    zero, one = xp.zeros_like(x), xp.ones_like(x)
     rows = (
         (x / rho, y / rho, zero, zero, zero),
         (-y / rho2, x / rho2, -one, zero, zero),
@@ -189,9 +199,10 @@ def measurement_jacobian(mean: torch.Tensor, current: torch.Tensor) -> torch.Ten
 
 
 def _innovation(state, z, current, dim):
-    y = z - _measurement_function(state, current, dim)
-    rho, psi, alpha, vx, vy, w = y.unbind(dim)
-    return torch.stack((rho, wrap_angle(psi), wrap_angle(alpha), vx, vy, w), dim=dim)
+    xp = ops(state)
+    y = xp.sub(z, _measurement_function(state, current, dim))
+    rho, psi, alpha, vx, vy, w = xp.unbind(y, dim)
+    return xp.stack((rho, wrap_angle(psi), wrap_angle(alpha), vx, vy, w), dim=dim)
 
 
 def innovation(mean: torch.Tensor, z: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
@@ -209,9 +220,12 @@ def measurement_noise_std(
     measured_range: torch.Tensor, noise_std: torch.Tensor | Sequence[float] | None = None
 ) -> torch.Tensor:
     """Table 2 sigmas per measurement, ``(..., 6)``: the range sigma is ``noise_std[0] * rho``
-    with the *measured* ``rho`` (floored at :data:`MIN_RANGE`), the others are constant."""
+    with the *measured* ``rho`` (floored at :data:`MIN_RANGE`), the others are constant. For
+    one env's float ``measured_range``, a tuple of 6 floats."""
     if noise_std is None:
         noise_std = MEASUREMENT_NOISE_STD
+    if not isinstance(measured_range, torch.Tensor):  # one env's float: a tuple of 6
+        return (noise_std[0] * max(measured_range, MIN_RANGE), *noise_std[1:])
     noise_std = torch.as_tensor(noise_std, dtype=measured_range.dtype, device=measured_range.device)
     rho = measured_range.clamp_min(MIN_RANGE).unsqueeze(-1)
     return torch.cat((noise_std[..., :1] * rho, noise_std[..., 1:].expand(*rho.shape[:-1], 5)), -1)
@@ -312,10 +326,11 @@ def ekf_predict(
 
 
 def _predict(m, P, action, current, Q, dt, k_v, k_w):
+    xp = ops(m)
     A = _motion_jacobian_entries(m[2], m[3], dt, k_v, k_w)
     m = _motion_model(m, action, current, dt, k_v, k_w, dim=0)
     # A P A^T = A (A P)^T, P symmetric
-    P = _apply_motion_jacobian(A, _apply_motion_jacobian(A, P).transpose(0, 1)) + Q
+    P = xp.add_matrix(_apply_motion_jacobian(A, xp.transpose(_apply_motion_jacobian(A, P))), Q)
     return m, _symmetric(P, batch_last=True)
 
 
@@ -446,6 +461,7 @@ def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[
 
 
 def _update(m, P, z, current, noise, full, arrived=None, gate=None):
+    xp = ops(m)
     H = _measurement_jacobian(m, current, batch_last=True)  # (6, 5, N)
     y = _innovation(m, z, current, dim=0)  # (6, N)
     if gate is not None:
@@ -457,24 +473,23 @@ def _update(m, P, z, current, noise, full, arrived=None, gate=None):
         y = torch.linalg.solve_triangular(L, y.T.unsqueeze(-1), upper=False).squeeze(-1).T
         H = torch.linalg.solve_triangular(L, H.permute(2, 0, 1), upper=False).permute(1, 2, 0)
     else:
-        y = y / noise
-        H = H / noise.unsqueeze(1)
-    shift = torch.zeros_like(m)  # x - x_prior: every scalar update linearises at the prior
+        y = xp.divide(y, noise)
+        H = xp.divide_rows(H, noise)
+    shift = xp.zeros_like(m)  # x - x_prior: every scalar update linearises at the prior
     for i in range(MEASUREMENT_DIM):
         h = H[i]  # (5, N)
-        u = (P * h.unsqueeze(0)).sum(1)  # P h
-        hu = (h * u).sum(0)
-        K = u / (hu + 1.0)  # eqs. 31-32 for one unit-variance measurement
+        u = xp.matvec(P, h)  # P h
+        hu = xp.dot(h, u)
+        K = xp.divide(u, hu + 1.0)  # eqs. 31-32 for one unit-variance measurement
         if arrived is not None:  # a zero gain leaves mean and P exactly as they are
-            K = torch.where(arrived[i], K, torch.zeros_like(K))
-        shift = shift + K * (y[i] - (h * shift).sum(0))  # eq. 33
+            K = xp.where(arrived[i], K, xp.zeros_like(K))
+        shift = xp.add_scaled(shift, K, y[i] - xp.dot(h, shift))  # eq. 33
         # eq. 34 in Joseph form, M P M^T + K K^T with M = I - K h^T, without forming M:
         # M P = P - K u^T and (M P) M^T = M P - w K^T, w = (M P) h = u - K (h . u);
         # so P <- P - K (u - K)^T - w K^T
-        w = u - K * hu
-        P = torch.addcmul(P, K.unsqueeze(1), (u - K).unsqueeze(0), value=-1.0)
-        P = torch.addcmul(P, w.unsqueeze(1), K.unsqueeze(0), value=-1.0)
-    return _wrap_heading(m + shift, dim=0), _symmetric(P, batch_last=True)
+        w = xp.sub(u, xp.multiply(K, hu))
+        P = xp.rank2_sub(P, K, xp.sub(u, K), w, K)
+    return _wrap_heading(xp.add(m, shift), dim=0), _symmetric(P, batch_last=True)
 
 
 def ekf_step(
@@ -499,29 +514,40 @@ def ekf_step(
     Returns ``(mean, cov, h(mean))``, the last being the filtered observation (eq. 26 of the
     estimate)."""
     batch = mean.shape[:-1]
-    cur = _vector_to_last(current)
-    m, P = _predict(
+    noise, full = _noise_to_last(R, batch, diagonal)
+    m, P, filtered = filter_entries(
         _vector_to_last(mean),
         _matrix_to_last(cov, batch),
         _vector_to_last(action),
-        cur,
-        _matrix_to_last(Q, batch),
-        dt,
-        k_v,
-        k_w,
-    )
-    m, P = _update(
-        m,
-        P,
         _vector_to_last(z),
-        cur,
-        *_noise_to_last(R, batch, diagonal),
-        _arrived_to_last(arrived, batch),
-        _checked_gate(gate),
+        _vector_to_last(current),
+        _matrix_to_last(Q, batch),
+        noise,
+        dt,
+        k_v=k_v,
+        k_w=k_w,
+        full=full,
+        arrived=_arrived_to_last(arrived, batch),
+        gate=_checked_gate(gate),
     )
-    filtered = _measurement_function(m, cur, dim=0)
     return (
         _vector_from_last(m, batch),
         _matrix_from_last(P, batch),
         _vector_from_last(filtered, batch),
     )
+
+
+def filter_entries(
+    mean, cov, action, z, current, Q, sigma, dt, *, k_v=2.5, k_w=2.5, full=False, arrived=None,
+    gate=None,
+):
+    """:func:`ekf_step` on batch-last entries, or on one env's Python floats.
+
+    ``mean`` ``(5, N)``, ``cov`` ``(5, 5, N)``, ``action`` ``(2, N)``, ``z`` ``(6, N)``,
+    ``current`` ``(2, N)``, ``Q`` ``(5, 5, N or 1)`` and ``sigma`` ``(6, N)``, the measurement
+    sigmas of a diagonal ``R`` (``full``: the ``(6, 6, N)`` Cholesky factor of a full one); or
+    the same as tuples of floats (vectors) and tuples of rows (matrices), diagonal ``R``, no
+    ``arrived`` and no ``gate``. Returns ``(mean, cov, h(mean))`` in the same form."""
+    m, P = _predict(mean, cov, action, current, Q, dt, k_v, k_w)
+    m, P = _update(m, P, z, current, sigma, full, arrived, gate)
+    return m, P, _measurement_function(m, current, dim=0)
