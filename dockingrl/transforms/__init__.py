@@ -11,13 +11,8 @@ from dockingrl.transforms.ekf import (
     motion_jacobian,
     motion_model,
 )
-from dockingrl.transforms.filtering import (
-    CompoundObservation,
-    EKFTransform,
-    MeasurementNoise,
-    NoiseContext,
-    ProcessNoise,
-)
+from dockingrl.transforms.filtering import CompoundObservation, EKFTransform
+from dockingrl.transforms.noise import MeasurementNoise, NoiseContext, ProcessNoise
 from dockingrl.transforms.repeat import ActionRepeat
 from dockingrl.transforms.shaping import (
     ContactSpeedPenalty,
