@@ -5,12 +5,12 @@ Usage: ``python bench/gym_throughput.py [--sizes 1 64 4096] [--seconds 3] [--thr
 
 Rows: the single env (``gymnasium.make("dockingrl/Docking-v0", scenario=...)``) with
 ``fast=True`` (the step and the filter on Python floats) and with its tensor step (the
-batched env's transition on one env, without TensorDict), the vector env (``gymnasium.make_vec(..., num_envs=n)``,
-NEXT_STEP autoreset) and the TorchRL pipeline (``dockingrl.make_env(scenario, n)``, a
-``step_and_maybe_reset`` per step as a collector does), for ``noise`` and ``compound`` (EKF
-included). Actions are uniform in the bounds, drawn before the clock starts. ``--compile``
-adds the single env with ``compile=True`` (``torch.compile`` of the same step functions; the
-first steps compile, outside the clock).
+batched env's transition on one env, without TensorDict), the vector env
+(``gymnasium.make_vec(..., num_envs=n)``, NEXT_STEP autoreset) and the TorchRL pipeline
+(``dockingrl.make_env(scenario, n)``, a ``step_and_maybe_reset`` per step as a collector
+does), for ``noise`` and ``compound`` (EKF included). Actions are uniform in the bounds, drawn
+before the clock starts. ``--compile`` adds the single env with ``compile=True``
+(``torch.compile`` of the same step functions; the first steps compile, outside the clock).
 """
 
 from __future__ import annotations

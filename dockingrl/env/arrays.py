@@ -4,11 +4,11 @@ The functions of :mod:`dockingrl.env.dynamics`, :mod:`dockingrl.env.reward`,
 :mod:`dockingrl.env.transition` and :mod:`dockingrl.transforms.ekf` run on torch tensors (a batch
 of envs: the TorchRL env) and on Python floats (one env: the fast Gymnasium env). They take
 ``xp = ops(x)`` from an argument and call ``xp.sin``, ``xp.stack``, ``xp.matvec``, ... instead
-of ``torch.*``: :class:`TensorOps` are torch's own functions (the batched numbers do not change),
-:class:`FloatOps` the same operations on floats, vectors being sequences of floats (tuples or
-lists) and matrices sequences of rows. Linear algebra is batch-last as the EKF runs it: a vector ``(k, ...)`` and a
-matrix ``(r, c, ...)`` hold their entries first, so that row ``i`` of a float matrix is
-``P[i]`` as it is for a tensor.
+of ``torch.*``: :class:`TensorOps` are torch's own functions (the batched numbers do not
+change), :class:`FloatOps` the same operations on floats, vectors being sequences of floats
+(tuples or lists) and matrices sequences of rows. Linear algebra is batch-last as the EKF runs
+it: a vector ``(k, ...)`` and a matrix ``(r, c, ...)`` hold their entries first, so that row
+``i`` of a float matrix is ``P[i]`` as it is for a tensor.
 """
 
 from __future__ import annotations
@@ -167,17 +167,17 @@ class FloatOps:
         """``y + x1 * a1 + x2 * a2 + ...`` for ``terms = (x1, a1, x2, a2, ...)``, numbers ``a``."""
         if len(terms) == 2:
             x, a = terms
-            return [yi + xi * a for yi, xi in zip(y, x)]
+            return [yi + xi * a for yi, xi in zip(y, x, strict=False)]
         x1, a1, x2, a2 = terms
-        return [yi + xi * a1 + zi * a2 for yi, xi, zi in zip(y, x1, x2)]
+        return [yi + xi * a1 + zi * a2 for yi, xi, zi in zip(y, x1, x2, strict=False)]
 
     @staticmethod
     def add_matrix(a, b) -> list:
-        return [list(map(operator.add, r, s)) for r, s in zip(a, b)]
+        return [list(map(operator.add, r, s)) for r, s in zip(a, b, strict=False)]
 
     @staticmethod
     def divide_rows(matrix, divisor) -> list:
-        return [[x / d for x in row] for row, d in zip(matrix, divisor)]
+        return [[x / d for x in row] for row, d in zip(matrix, divisor, strict=False)]
 
     @staticmethod
     def matvec(matrix, vector) -> list:
@@ -192,20 +192,20 @@ class FloatOps:
 
     @staticmethod
     def transpose(matrix) -> list:
-        return list(zip(*matrix))
+        return list(zip(*matrix, strict=False))
 
     @staticmethod
     def symmetric(matrix) -> list:
         return [
-            [0.5 * (x + y) for x, y in zip(row, column)]
-            for row, column in zip(matrix, zip(*matrix))
+            [0.5 * (x + y) for x, y in zip(row, column, strict=False)]
+            for row, column in zip(matrix, zip(*matrix, strict=False), strict=False)
         ]
 
     @staticmethod
     def rank2_sub(matrix, a, b, c, d) -> list:
         return [
-            [x - ai * bj - ci * dj for x, bj, dj in zip(row, b, d)]
-            for row, ai, ci in zip(matrix, a, c)
+            [x - ai * bj - ci * dj for x, bj, dj in zip(row, b, d, strict=False)]
+            for row, ai, ci in zip(matrix, a, c, strict=False)
         ]
 
 

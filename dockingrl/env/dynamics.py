@@ -2,9 +2,10 @@
 
 Every function works on tensors of any leading batch shape (differentiable where the maths is)
 and on one env's Python floats, vectors as tuples (:mod:`dockingrl.env.arrays`); an
-element-wise function takes one axis's floats. Frames: the world frame is the docking-station (DS) frame, DS at the origin, funnel
-mouth towards -x; ``alpha`` is the AUV heading in that frame (0 = pointing at the DS along +x).
-Body-frame velocities ``(u, v, r)`` are surge, sway and yaw rate through the water.
+element-wise function takes one axis's floats. Frames: the world frame is the docking-station
+(DS) frame, DS at the origin, funnel mouth towards -x; ``alpha`` is the AUV heading in that
+frame (0 = pointing at the DS along +x). Body-frame velocities ``(u, v, r)`` are surge, sway
+and yaw rate through the water.
 """
 
 from __future__ import annotations

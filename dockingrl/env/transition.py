@@ -114,7 +114,18 @@ def paper_step(
     speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
     success = contact & (score > 0) & (speed <= speed_limit)
     next_state = SimulatorState(
-        x, y, alpha, u, v, r, state.oc_x, state.oc_y, integral_u, integral_r, error_u, error_r,
+        x,
+        y,
+        alpha,
+        u,
+        v,
+        r,
+        state.oc_x,
+        state.oc_y,
+        integral_u,
+        integral_r,
+        error_u,
+        error_r,
         step_count,
     )
     contact_speed = xp.where(contact, speed, xp.zeros_like(speed))

@@ -206,12 +206,21 @@ class DockingScenarioEnv(DockingGymEnv):
         parts = {"observation": observation, "ocean_current": current, "previous_action": action}
         if self._ekf is not None:
             ekf, (mean, cov) = self._ekf, self._filter_state
-            rho = math.hypot(mean[0], mean[1]) if ekf.range_noise_from == "estimate" else observation[0]
+            estimate = ekf.range_noise_from == "estimate"
+            rho = math.hypot(mean[0], mean[1]) if estimate else observation[0]
             sigma = tuple(
                 math.sqrt(s * s + self._r_eps) for s in measurement_noise_std(rho, self._r_std)
             )
             mean, cov, filtered = filter_entries(
-                mean, cov, action, observation, current, self._q, sigma, ekf.dt, k_v=ekf.k_v,
+                mean,
+                cov,
+                action,
+                observation,
+                current,
+                self._q,
+                sigma,
+                ekf.dt,
+                k_v=ekf.k_v,
                 k_w=ekf.k_w,
             )
             self._filter_state = (mean, cov)

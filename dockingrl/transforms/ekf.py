@@ -538,7 +538,19 @@ def ekf_step(
 
 
 def filter_entries(
-    mean, cov, action, z, current, Q, sigma, dt, *, k_v=2.5, k_w=2.5, full=False, arrived=None,
+    mean,
+    cov,
+    action,
+    z,
+    current,
+    Q,
+    sigma,
+    dt,
+    *,
+    k_v=2.5,
+    k_w=2.5,
+    full=False,
+    arrived=None,
     gate=None,
 ):
     """:func:`ekf_step` on batch-last entries, or on one env's Python floats.
