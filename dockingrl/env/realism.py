@@ -13,8 +13,9 @@ import math
 
 import torch
 
-from dockingrl.env.config import SCALE_RANGES, DockingConfig, retuned_gains
+from dockingrl.env.config import DockingConfig, retuned_gains
 from dockingrl.env.dynamics import wrap_angle
+from dockingrl.env.realism_options import SCALE_RANGES
 
 #: the sensors whose readings' ages ``sensor_age`` reports, in its column order
 SENSORS = ("usbl", "dvl", "imu")
@@ -85,8 +86,9 @@ def limit_thrust(
 
 
 def draw_scales(config: DockingConfig, n: int, generator, device, dtype) -> torch.Tensor:
-    """``(n, 5)`` per-episode factors, uniform within :data:`~dockingrl.env.config.SCALE_RANGES`'
-    ranges, in that order (mass, damping, thrust, PID gains, response time)."""
+    """``(n, 5)`` per-episode factors, uniform within the ranges of
+    :data:`~dockingrl.env.realism_options.SCALE_RANGES`, in that order (mass, damping, thrust,
+    PID gains, response time)."""
     low = torch.tensor([getattr(config, k)[0] for k in SCALE_RANGES], device=device, dtype=dtype)
     high = torch.tensor([getattr(config, k)[1] for k in SCALE_RANGES], device=device, dtype=dtype)
     u = torch.rand(n, len(SCALE_RANGES), generator=generator, device=device, dtype=dtype)
