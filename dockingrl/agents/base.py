@@ -114,6 +114,7 @@ def scalar(value: torch.Tensor) -> float:
     return float(value.detach())
 
 
-def adam(params, lr: float) -> torch.optim.Adam:
-    """An Adam optimiser over ``params``."""
-    return torch.optim.Adam(list(params), lr=lr)
+def adam(params, cfg: TrainConfig) -> torch.optim.Adam:
+    """An Adam optimiser over ``params`` at ``cfg.lr``: fused with ``cfg.fast_update`` (about a
+    third of the time per step on a CPU; other roundings than the default's per-tensor step)."""
+    return torch.optim.Adam(list(params), lr=cfg.lr, fused=True if cfg.fast_update else None)

@@ -177,6 +177,12 @@ class TrainConfig:
         "steps, one transition per action_repeat of them",
         default=1,
     )
+    fast_update: bool = _doc(
+        "faster gradient updates that round differently from the default (same arithmetic, "
+        "other kernels and order): fused Adam steps, and on a CPU SAC's and TD3's twin critics "
+        "as two matrix products each instead of vmap's batched one (not in the paper)",
+        default=False,
+    )
 
     algo: str = ""  # set by the subclasses
     recipe: str = ""  # the name of the recipe the config was made from (dockingrl.recipes)
@@ -241,6 +247,8 @@ class TrainConfig:
                 "mirror_symmetric",
                 f"valid: {', '.join(MIRROR_SYMMETRIC)} (got {self.mirror_symmetric!r})",
             )
+        if not isinstance(self.fast_update, bool):
+            fail("fast_update", "must be true or false")
         if self.mirror_symmetric == "all" and getattr(self, "privileged_critic", False):
             fail(
                 "mirror_symmetric",

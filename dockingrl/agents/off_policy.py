@@ -40,6 +40,37 @@ def transition_keys(cfg: TrainConfig) -> tuple:
     return TRANSITION_KEYS + PRIVILEGED_KEYS + tuple(("next", k) for k in PRIVILEGED_KEYS)
 
 
+class ForeachSoftUpdate(SoftUpdate):
+    """TorchRL's ``SoftUpdate`` as one ``torch._foreach_lerp_`` over lists of the target and
+    source parameters gathered once, instead of gathering them through tensordicts at every
+    step: the same numbers, a tenth of the time (0.05 ms instead of 0.5 ms for SAC's critics
+    on a 2-core CPU)."""
+
+    _lists: tuple[list, list] | None = None
+
+    def step(self) -> None:
+        if self._lists is None:
+            keys = list(self._sources.keys(True, True))
+            self._lists = (
+                [self._targets.get(("target_" + k[0], *k[1:])).data for k in map(_key, keys)],
+                [self._sources.get(k).data for k in keys],
+            )
+        targets, sources = self._lists
+        torch._foreach_lerp_(targets, sources, 1 - self.eps)
+
+
+def _key(key) -> tuple:
+    return key if isinstance(key, tuple) else (key,)
+
+
+def vmap_ensembles(cfg: TrainConfig) -> bool:
+    """Whether the twin critics run through ``torch.vmap`` (one batched matrix product per
+    layer, TorchRL's default) rather than one after the other. With ``fast_update`` on a CPU
+    they run one after the other: the batched products (``bmm``) of an update took 1.7x the
+    time of the plain ones at the paper's sizes, 1 thread (other roundings, hence opt-in)."""
+    return not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
+
+
 def replay_buffer(cfg: OffPolicyConfig, device) -> TensorDictReplayBuffer:
     """A uniformly sampled replay buffer of ``cfg.buffer_size`` transitions on ``device``."""
     return TensorDictReplayBuffer(
@@ -70,8 +101,8 @@ class OffPolicyAgent(Agent):
         loss = cls.make_loss(cfg, actor, qvalue, action_spec)
         loss.make_value_estimator(gamma=cfg.gamma)
         optimizers = {
-            "actor": adam(loss.actor_network_params.flatten_keys().values(), cfg.lr),
-            "critic": adam(loss.qvalue_network_params.flatten_keys().values(), cfg.lr),
+            "actor": adam(loss.actor_network_params.flatten_keys().values(), cfg),
+            "critic": adam(loss.qvalue_network_params.flatten_keys().values(), cfg),
             **cls.more_optimizers(cfg, loss),
         }
         return cls(
@@ -80,7 +111,7 @@ class OffPolicyAgent(Agent):
             exploration,
             loss,
             optimizers,
-            SoftUpdate(loss, tau=cfg.tau),
+            ForeachSoftUpdate(loss, tau=cfg.tau),
             replay_buffer(cfg, device),
         )
 

@@ -49,7 +49,7 @@ class PPOAgent(Agent):
             actor,
             actor,
             loss,
-            {"all": adam(loss.parameters(), cfg.lr)},
+            {"all": adam(loss.parameters(), cfg)},
             advantage=advantage,
             extra={"generator": generator},
         )

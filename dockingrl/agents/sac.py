@@ -7,7 +7,7 @@ from torchrl.objectives import SACLoss
 
 from dockingrl.agents.base import adam
 from dockingrl.agents.config import SACConfig
-from dockingrl.agents.off_policy import OffPolicyAgent
+from dockingrl.agents.off_policy import OffPolicyAgent, vmap_ensembles
 
 
 class SACAgent(OffPolicyAgent):
@@ -23,12 +23,13 @@ class SACAgent(OffPolicyAgent):
             alpha_init=cfg.alpha,
             fixed_alpha=not cfg.learn_alpha,
             target_entropy=cfg.target_entropy,
+            deactivate_vmap=not vmap_ensembles(cfg),
         )
 
     @classmethod
     def more_optimizers(cls, cfg: SACConfig, loss: SACLoss) -> dict:
         """The temperature's optimiser with ``learn_alpha``."""
-        return {"alpha": adam([loss.log_alpha], cfg.lr)} if cfg.learn_alpha else {}
+        return {"alpha": adam([loss.log_alpha], cfg)} if cfg.learn_alpha else {}
 
     def _update(self, batch):
         for o in self.optimizers.values():

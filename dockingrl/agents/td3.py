@@ -9,7 +9,7 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import TD3Loss
 
 from dockingrl.agents.config import TD3Config
-from dockingrl.agents.off_policy import OffPolicyAgent
+from dockingrl.agents.off_policy import OffPolicyAgent, vmap_ensembles
 
 
 class TD3Agent(OffPolicyAgent):
@@ -38,6 +38,7 @@ class TD3Agent(OffPolicyAgent):
             policy_noise=cfg.target_policy_noise,
             noise_clip=cfg.target_noise_clip,
             loss_function="l2",
+            deactivate_vmap=not vmap_ensembles(cfg),
         )
 
     def _update(self, batch):
