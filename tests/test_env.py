@@ -255,7 +255,7 @@ def test_bad_constructor_arguments():
 
 
 def test_gymnasium_registration_and_checker():
-    env = gymnasium.make("dockingrl/Docking-v0")
+    env = gymnasium.make("dockingrl/Docking-v0", fast=False)
     check_env(env.unwrapped)
     obs, info = env.reset(seed=3)
     assert obs.shape == (6,) and obs.dtype == np.float32

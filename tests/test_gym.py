@@ -66,7 +66,7 @@ def _step_for_step(env, reference, seed, steps):
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_same_numbers_as_make_env_step_for_step(scenario):
     short = DockingConfig(max_steps=60)  # episode ends and resets within the run
-    env = gymnasium.make(ID, scenario=scenario, config=short)
+    env = gymnasium.make(ID, scenario=scenario, config=short, fast=False)
     ends = _step_for_step(env, make_env(scenario, 1, seed=11, config=short), 11, 200)
     assert ends >= 3
 
@@ -83,6 +83,7 @@ def test_same_numbers_with_every_option(tmp_path):
     )
     env = gymnasium.make(
         ID,
+        fast=False,
         scenario="compound",
         range_noise_scale=2.0,
         bearing_noise_scale=1.5,
@@ -197,7 +198,7 @@ def test_make_vec_is_the_batched_env_with_the_same_numbers_as_make_env():
         assert reward.dtype == np.float64 and terminated.dtype == truncated.dtype == bool
         td = step_mdp(td)
     # a batch of one gives the single env's numbers
-    single, one = gymnasium.make(ID, scenario="compound"), DockingVectorEnv(1, "compound")
+    single, one = gymnasium.make(ID, scenario="compound", fast=False), DockingVectorEnv(1, "compound")
     np.testing.assert_array_equal(single.reset(seed=9)[0], one.reset(seed=9)[0][0])
     action = np.float32([0.5, 0.1])
     np.testing.assert_array_equal(single.step(action)[0], one.step(action[None])[0][0])
@@ -347,7 +348,7 @@ def test_sb3_ppo_trains_and_evaluates_through_dockingrl(vectorised):
     config = DockingConfig(max_steps=150)
     metrics = dockingrl.evaluate(policy, "compound", 1, seed=21, config=config)
     # the same episode in the single Gymnasium env, with SB3's own predict
-    single = gymnasium.make(ID, scenario="compound", config=config)
+    single = gymnasium.make(ID, scenario="compound", config=config, fast=False)
     obs, _ = single.reset(seed=21)
     total, done, steps = 0.0, False, 0
     while not done:

@@ -162,3 +162,11 @@ def test_fast_refusals_are_one_clear_line():
         gymnasium.make(ID, fast=True, compile=True)
     with pytest.raises(ValueError, match="fast=True filters with a constant Q"):
         gymnasium.make(ID, scenario="compound", fast=True, ekf_kwargs={"gate": 13.8})
+
+
+def test_fast_is_the_default_where_the_fast_path_can_run():
+    assert gymnasium.make(ID, scenario="compound").unwrapped.fast
+    assert gymnasium.make(ID, scenario="noise").unwrapped.fast
+    # a gated filter and a compiled step stay on tensors instead of failing
+    assert not gymnasium.make(ID, scenario="compound", ekf_kwargs={"gate": 13.8}).unwrapped.fast
+    assert not gymnasium.make(ID, scenario="noise", compile=True).unwrapped.fast

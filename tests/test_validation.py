@@ -365,7 +365,7 @@ def test_filter_stays_finite_at_the_largest_dt_and_noise():
     ],
 )
 def test_gym_env_refuses_bad_actions_in_one_line(action, said):
-    env = gymnasium.make("dockingrl/Docking-v0").unwrapped
+    env = gymnasium.make("dockingrl/Docking-v0", fast=False).unwrapped
     env.reset(seed=0)
     message = refusal(env.step, action)
     assert message.startswith("action must be a finite real action of shape (2,) [v_d, w_d], ")
@@ -381,13 +381,13 @@ def test_gym_env_clips_any_finite_action_and_takes_lists_and_tuples():
         "list": [5.0, 1.0],
         "tuple of ints": (3, 2),
     }.items():
-        env = gymnasium.make("dockingrl/Docking-v0").unwrapped
+        env = gymnasium.make("dockingrl/Docking-v0", fast=False).unwrapped
         env.reset(seed=5)
         env.step(action)
         results[name] = env._td["true_state"]
     for name, state in results.items():
         assert torch.equal(state, results["array"]), name
-    env = gymnasium.make("dockingrl/Docking-v0").unwrapped
+    env = gymnasium.make("dockingrl/Docking-v0", fast=False).unwrapped
     env.reset(seed=5)
     env.step(np.array([-1e300, -1e300]))
     applied = env._env.get_state()["previous_error"]  # the command minus the start's rest

@@ -106,7 +106,8 @@ class DockingGymEnv(gymnasium.Env):
             (about 20 s on a 2-core CPU), then a step costs several times less.
         fast: step on Python floats (:func:`~dockingrl.env.transition.paper_step`) instead of
             tensors: the same functions and noise draws, the numbers equal to float32 rounding
-            (see the module's docstring). Not with ``compile``.
+            (see the module's docstring). Not with ``compile``. ``None`` (default): fast
+            unless ``compile``; ``False`` gives the batched env's numbers bit for bit.
     """
 
     metadata = {"render_modes": []}
@@ -117,8 +118,10 @@ class DockingGymEnv(gymnasium.Env):
         *,
         simulator: DockingEnv | None = None,
         compile: bool = False,
-        fast: bool = False,
+        fast: bool | None = None,
     ) -> None:
+        if fast is None:
+            fast = not compile
         if simulator is None:
             simulator = DockingEnv(1, config=config, seed=0)
         elif not isinstance(simulator, DockingEnv) or simulator.num_envs != 1:

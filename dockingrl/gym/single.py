@@ -102,6 +102,22 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
     return spaces.Box(np.concatenate(lows), np.concatenate(highs), dtype=np.float32)
 
 
+def _fast_filter_problem(ekf: EKFTransform, env) -> str | None:
+    """Why the fast path cannot run ``ekf`` (``None``: it can): it filters with the paper's
+    EKF only, on the env's action bounds."""
+    if ekf.process_noise.manoeuvre or ekf.context_noise or ekf.gate is not None:
+        return (
+            "fast=True filters with a constant Q, a diagonal R and no gate (the paper's "
+            "EKF); this filter has manoeuvre noise, context noise or a gate: use fast=False"
+        )
+    config = env.base_env.config if hasattr(env, "base_env") else env.config
+    bounds = ekf.action_bounds
+    env_bounds = torch.tensor([config.action_low, config.action_high])
+    if bounds is not None and bounds.tolist() != env_bounds.tolist():
+        return "fast=True needs the filter's action bounds to be the env's"
+    return None
+
+
 class DockingScenarioEnv(DockingGymEnv):
     """One of the paper's four scenarios (Sec. 4) as a ``gymnasium.Env``: what
     ``gymnasium.make("dockingrl/Docking-v0", scenario=..., ...)`` builds.
@@ -125,6 +141,8 @@ class DockingScenarioEnv(DockingGymEnv):
             draws, the numbers equal to float32 rounding, several times faster than
             ``compile``; a reset still runs on tensors. The filter must be the paper's (a
             constant ``Q``, a diagonal ``R``, no gate): not with manoeuvre or context noise.
+            ``None`` (default): fast where it can be (no ``compile``, the paper's filter);
+            ``False`` gives the TorchRL pipeline's numbers bit for bit.
         options: :func:`scenario_pipeline`'s (``config``, ``range_noise_scale``,
             ``bearing_noise_scale``, ``filter_params``, ``ekf_kwargs``, ``observe_current``,
             ``observe_command``, ``following_current_fraction``,
@@ -139,7 +157,7 @@ class DockingScenarioEnv(DockingGymEnv):
         *,
         render_mode: str | None = None,
         compile: bool = False,
-        fast: bool = False,
+        fast: bool | None = None,
         **options,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -147,6 +165,9 @@ class DockingScenarioEnv(DockingGymEnv):
                 f"render_mode must be None, 'human' or 'rgb_array', got {render_mode!r}"
             )
         pipeline = scenario_pipeline(scenario, 1, **options)
+        ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
+        if fast is None:
+            fast = not compile and (ekf is None or _fast_filter_problem(ekf, pipeline) is None)
         super().__init__(simulator=pipeline.base_env, compile=compile, fast=fast)
         self.scenario = scenario
         self.render_mode = render_mode
@@ -157,7 +178,7 @@ class DockingScenarioEnv(DockingGymEnv):
         )
         self.observation_space = observation_space(self.layout, self.config)
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.config.dt)}
-        self._ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
+        self._ekf = ekf
         if fast and self._ekf is not None:
             self._float_filter_constants()
         self._track: list[list[float]] = []
@@ -182,15 +203,9 @@ class DockingScenarioEnv(DockingGymEnv):
     def _float_filter_constants(self) -> None:
         """The filter's ``Q``, Table 2's sigmas and ``R``'s floor as floats, for the fast path."""
         ekf = self._ekf
-        bounds = ekf.action_bounds
-        if ekf.process_noise.manoeuvre or ekf.context_noise or ekf.gate is not None:
-            raise ValueError(
-                "fast=True filters with a constant Q, a diagonal R and no gate (the paper's "
-                "EKF); this filter has manoeuvre noise, context noise or a gate: use fast=False"
-            )
-        env_bounds = torch.tensor([self.config.action_low, self.config.action_high])
-        if bounds is not None and bounds.tolist() != env_bounds.tolist():
-            raise ValueError("fast=True needs the filter's action bounds to be the env's")
+        problem = _fast_filter_problem(ekf, self)
+        if problem is not None:
+            raise ValueError(problem)
         with torch.no_grad():
             self._q = tuple(map(tuple, ekf.process_noise().float().tolist()))
             self._r_std = tuple(ekf.measurement_noise.std().float().tolist())
