@@ -1,0 +1,57 @@
+"""The checks of :class:`~dockingrl.env.DockingEnv`'s inputs and, in debug mode, outputs: an
+action's type, shape and finiteness, and NaN or inf in what a reset or step gives."""
+
+from __future__ import annotations
+
+import torch
+
+from dockingrl.env.dynamics import clip_action
+from dockingrl.env.specs import ACTION_DIM
+
+
+def validated_action(
+    action: torch.Tensor,
+    batch: tuple[int, ...],
+    device: torch.device,
+    dtype: torch.dtype,
+    low: torch.Tensor,
+    high: torch.Tensor,
+) -> torch.Tensor:
+    """``action`` checked (a real tensor of shape ``(*batch, 2)``, finite) and clipped to the
+    bounds ``low``, ``high`` of eq. 3, on ``device`` in ``dtype``."""
+    expected = (*batch, ACTION_DIM)
+    if not isinstance(action, torch.Tensor):
+        raise TypeError(
+            f"action must be a torch.Tensor of shape {expected}, got {type(action).__name__}"
+        )
+    if action.dtype == torch.bool or action.is_complex():
+        raise ValueError(f"action must be a real-valued tensor, got dtype {action.dtype}")
+    if tuple(action.shape) != expected:
+        raise ValueError(
+            f"action must have shape {expected} (batch, [v_d, w_d]), got {tuple(action.shape)}"
+        )
+    finite = torch.isfinite(action).reshape(-1, ACTION_DIM).all(-1)
+    if not bool(finite.all()):
+        index = int((~finite).nonzero()[0, 0])
+        raise ValueError(
+            f"action must be finite, no NaN or inf; batch entry {index} (flattened) is "
+            f"{action.reshape(-1, ACTION_DIM)[index].tolist()}"
+        )
+    action = action.to(device=device, dtype=dtype)
+    return clip_action(action, low, high)
+
+
+def check_finite(entries: dict[str, torch.Tensor], step_count: torch.Tensor, when: str) -> None:
+    """Raise ``FloatingPointError`` at the first of ``entries`` (``(n, ...)`` each) holding a
+    NaN or inf, naming it, ``when`` (``"reset"`` or ``"step"``), the first env holding one and
+    its step count (``step_count`` ``(n, 1)``)."""
+    n = step_count.shape[0]
+    for key, value in entries.items():
+        finite = torch.isfinite(value).reshape(n, -1).all(-1)
+        if not bool(finite.all()):
+            env = int((~finite).nonzero()[0, 0])
+            step = int(step_count[env, 0])
+            raise FloatingPointError(
+                f"DockingEnv check_finite: {key!r} is not finite after {when} in env {env} "
+                f"at its step {step}: {value[env].tolist()}"
+            )

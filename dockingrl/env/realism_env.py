@@ -1,0 +1,169 @@
+"""The part of :class:`~dockingrl.env.DockingEnv` that simulates the realism options of
+:class:`~dockingrl.env.DockingConfig` (not in the paper; docs/realism.md): their per-env state,
+its start at a reset and the realistic step, through the functions of
+:mod:`dockingrl.env.realism`. Their randomness comes from the env's :attr:`realism_rng`, so that
+turning an option on leaves the start states and Table 2's noise of every episode as they
+were."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+
+from dockingrl.env.dynamics import noisy_observation
+from dockingrl.env.realism import (
+    SENSOR_OF_ENTRY,
+    SENSORS,
+    draw_scales,
+    dropout_step,
+    dropout_transition,
+    ou_current_step,
+    usbl_outlier,
+    vehicle_parameters,
+)
+from dockingrl.env.specs import OBSERVATION_DIM
+
+
+class RealismMixin:
+    """The realism options' state and step of :class:`~dockingrl.env.DockingEnv`, which
+    gives the simulator's state and steps (``_advance``, ``_output``, ``_observe``,
+    ``_clean_observation``, ``_sample_noise``, ``_check_finite``)."""
+
+    @property
+    def vehicle_scales(self) -> torch.Tensor | None:
+        """``(num_envs, 5)`` this episode's factors on mass, damping, thrust, PID gains and
+        response time of each env (:attr:`DockingConfig.mass_scale` and the following), a
+        copy; ``None`` when no dynamics-mismatch option is on."""
+        return None if self._vehicle is None else self._scales.clone()
+
+    def _make_realism_state(self) -> None:
+        """The per-env state of the realism options that are on (docs/realism.md)."""
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+        if cfg.dynamics_mismatch:
+            self._scales = torch.ones(n, 5, device=dev, dtype=dtype)
+            self._vehicle = vehicle_parameters(cfg, self._scales)
+        else:
+            self._vehicle = None
+        if cfg.current_model:
+            self._current_mean = torch.zeros(n, 2, device=dev, dtype=dtype)
+            self._current_bias = torch.zeros(n, 2, device=dev, dtype=dtype)
+            self._known_current = torch.zeros(n, 2, device=dev, dtype=dtype)
+        if cfg.sensor_timing:
+            history = cfg.usbl_latency_steps + 1
+            self._held = torch.zeros(n, OBSERVATION_DIM, device=dev, dtype=dtype)
+            self._sensor_steps = torch.zeros(n, len(SENSORS), device=dev, dtype=torch.int64)
+            self._usbl_history = torch.zeros(n, history, 2, device=dev, dtype=dtype)
+            self._lost = torch.zeros(n, 1, device=dev, dtype=torch.bool)
+            self._sensor_entry = torch.tensor(SENSOR_OF_ENTRY, device=dev)
+
+    def _reset_realism(self, rows: torch.Tensor, current_mean: torch.Tensor) -> torch.Tensor:
+        """Start the realism state of the envs in ``rows`` ``(n, 1)`` (their true state is
+        reset already; ``current_mean`` is their drawn current) and return the observation:
+        every sensor reports at an episode's start."""
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+        gen = self.realism_rng
+        if cfg.dynamics_mismatch:
+            scales = draw_scales(cfg, n, gen, dev, dtype)
+            self._scales = torch.where(rows, scales, self._scales)
+            self._vehicle = vehicle_parameters(cfg, self._scales)
+        if cfg.current_model:
+            self._current_mean = torch.where(rows, current_mean, self._current_mean)
+            if cfg.current_knowledge_bias > 0:
+                bias = torch.randn(n, 2, generator=gen, device=dev, dtype=dtype)
+                bias = cfg.current_knowledge_bias * bias
+                self._current_bias = torch.where(rows, bias, self._current_bias)
+            self._known_current = self._believed_current()
+        if not cfg.sensor_timing:
+            return self._observe()
+        clean = self._clean_observation()
+        reading = clean
+        if cfg.noise:
+            reading = noisy_observation(clean, self._sample_noise(), self._noise_std)
+        self._held = torch.where(rows, reading, self._held)
+        self._sensor_steps = self._sensor_steps.masked_fill(rows, 0)
+        history = clean[:, None, :2].expand_as(self._usbl_history)
+        self._usbl_history = torch.where(rows.unsqueeze(-1), history, self._usbl_history)
+        self._lost = self._lost & ~rows
+        return self._held
+
+    def _believed_current(self) -> torch.Tensor:
+        """The current the vehicle believes: the true one, its episode's bias and this step's
+        noise (:attr:`DockingConfig.current_knowledge_bias` and ``current_knowledge_noise``)."""
+        cfg = self.config
+        believed = self._current + self._current_bias
+        if cfg.current_knowledge_noise > 0:
+            shape = (self.num_envs, 2)
+            noise = torch.randn(
+                shape, generator=self.realism_rng, device=self.device, dtype=self.dtype
+            )
+            believed = believed + cfg.current_knowledge_noise * noise
+        return believed
+
+    def _sense(self, clean: torch.Tensor, noise: torch.Tensor | None) -> torch.Tensor:
+        """The sensors' readings after a step from the noise-free observation ``clean``: a
+        USBL fix of the vehicle ``usbl_latency`` ago every ``usbl_period`` unless lost to a
+        dropout, sometimes an outlier; DVL and IMU readings at their periods; every reading
+        held between its arrivals (:attr:`_held`); ages counted in :attr:`_sensor_steps`."""
+        cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype
+        gen = self.realism_rng
+        step = self._step_count
+        usbl = clean[:, :2]
+        if cfg.usbl_latency_steps > 0:
+            history = torch.cat((self._usbl_history[:, 1:], usbl.unsqueeze(1)), dim=1)
+            self._usbl_history = history
+            usbl = history[:, 0]
+        reading = torch.cat((usbl, clean[:, 2:]), dim=-1)
+        if noise is not None:
+            reading = noisy_observation(reading, noise, self._noise_std)
+        usbl_due = step % cfg.usbl_period_steps == 0
+        usbl_fix = usbl_due
+        if cfg.usbl_dropout_probability > 0:
+            uniform = torch.rand(n, 1, generator=gen, device=dev, dtype=dtype)
+            transition = dropout_transition(cfg.usbl_dropout_probability, cfg.usbl_dropout_burst)
+            lost = dropout_step(self._lost, uniform, *transition)
+            self._lost = torch.where(usbl_due, lost, self._lost)
+            usbl_fix = usbl_due & ~self._lost
+        if cfg.usbl_outlier_probability > 0:
+            draws = torch.rand(n, 2, generator=gen, device=dev, dtype=dtype)
+            outlier = draws[:, 0] < cfg.usbl_outlier_probability
+            direction = (2.0 * torch.pi) * draws[:, 1]
+            moved = usbl_outlier(reading[:, :2], cfg.usbl_outlier_distance, direction, outlier)
+            reading = torch.cat((moved, reading[:, 2:]), dim=-1)
+        fresh = torch.cat(
+            (usbl_fix, step % cfg.dvl_period_steps == 0, step % cfg.imu_period_steps == 0),
+            dim=-1,
+        )
+        self._held = torch.where(fresh[:, self._sensor_entry], reading, self._held)
+        self._sensor_steps = torch.where(fresh, 0, self._sensor_steps + 1)
+        return self._held
+
+    def _step_realistic(self, action: torch.Tensor) -> TensorDictBase:
+        """:meth:`_step` with realism options on: the episode's vehicle, the sensors' timing and
+        faults, the current's variation and the vehicle's belief about it. Table 2's noise is
+        drawn as in the paper's task, the rest from :attr:`realism_rng`."""
+        cfg = self.config
+        noise = self._sample_noise() if cfg.noise else None
+        out = self._advance(action, None, self._vehicle)
+        if cfg.sensor_timing:
+            out["observation"] = self._sense(out["observation"], noise)
+        elif noise is not None:
+            out["observation"] = noisy_observation(out["observation"], noise, self._noise_std)
+        if cfg.current_time_constant > 0:
+            shape = (self.num_envs, 2)
+            draw = torch.randn(
+                shape, generator=self.realism_rng, device=self.device, dtype=self.dtype
+            )
+            self._current = ou_current_step(
+                self._current,
+                self._current_mean,
+                cfg.dt,
+                cfg.current_time_constant,
+                cfg.current_variation_std,
+                draw,
+            )
+        if cfg.current_model:
+            self._known_current = self._believed_current()
+        out = self._output(**out)
+        if self.check_finite:
+            self._check_finite(out, "step")
+        return out

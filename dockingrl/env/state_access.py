@@ -1,0 +1,91 @@
+"""The whole state of :class:`~dockingrl.env.DockingEnv`'s simulator, read, written and
+stepped from outside its episodes: what a planner rolls forward (:mod:`dockingrl.planning`)."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+
+class StateAccessMixin:
+    """:meth:`get_state`, :meth:`set_state` and :meth:`simulate` of
+    :class:`~dockingrl.env.DockingEnv` (which holds the state in the attributes
+    :attr:`_STATE_ATTRIBUTES` and gives ``_transition`` and ``_validated_action``)."""
+
+    #: the simulator's whole state, as :meth:`get_state` returns it (``step_count`` is int64),
+    #: and the attribute holding each entry
+    STATE_KEYS = ("pose", "velocity", "ocean_current", "integral", "previous_error", "step_count")
+    _STATE_ATTRIBUTES = (
+        "_pose",
+        "_velocity",
+        "_current",
+        "_integral",
+        "_previous_error",
+        "_step_count",
+    )
+
+    def get_state(self) -> TensorDict:
+        """The simulator's whole state, a copy: ``pose`` ``(n, 3)``, ``velocity`` ``(n, 3)``,
+        ``ocean_current`` ``(n, 2)``, the PID's ``integral`` and ``previous_error`` ``(n, 2)``
+        and ``step_count`` ``(n, 1)``. With :meth:`set_state` and :meth:`simulate` it lets a
+        planner roll the dynamics forward from any state (:mod:`dockingrl.planning`)."""
+        pairs = zip(self.STATE_KEYS, self._STATE_ATTRIBUTES, strict=True)
+        return TensorDict(
+            {key: getattr(self, name).clone() for key, name in pairs},
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def set_state(self, state: TensorDictBase) -> None:
+        """Continue from ``state`` (as :meth:`get_state` returns it, same batch size and
+        shapes). This is the bare simulator's state: the transforms above it (the EKF's
+        estimate, the previous command, a held action, reward sums) keep their own."""
+        missing = [k for k in self.STATE_KEYS if k not in state.keys()]
+        if missing:
+            raise KeyError(f"state lacks {missing}; expected {list(self.STATE_KEYS)}")
+        if tuple(state.batch_size) != tuple(self.batch_size):
+            raise ValueError(
+                f"state batch size {tuple(state.batch_size)} != env's {tuple(self.batch_size)}"
+            )
+        values = {}
+        for key, name in zip(self.STATE_KEYS, self._STATE_ATTRIBUTES, strict=True):
+            value, expected = state[key], getattr(self, name)
+            if value.shape != expected.shape:
+                raise ValueError(
+                    f"state[{key!r}] must have shape {tuple(expected.shape)}, "
+                    f"got {tuple(value.shape)}"
+                )
+            if key == "step_count":
+                if value.is_floating_point() or value.is_complex() or bool((value < 0).any()):
+                    raise ValueError("state['step_count'] must hold integers >= 0")
+            elif not bool(torch.isfinite(value).all()):
+                raise ValueError(f"state[{key!r}] must be finite")
+            values[name] = value.to(device=self.device, dtype=expected.dtype).clone()
+        for name, value in values.items():
+            setattr(self, name, value)
+
+    def simulate(
+        self, state: TensorDictBase, action: torch.Tensor
+    ) -> tuple[TensorDict, dict[str, torch.Tensor]]:
+        """One noise-free step of the dynamics from ``state`` (any batch size), without
+        touching the env's own state: ``(next_state, out)`` with ``out`` the step's entries
+        (``reward``, ``terminated``, ``success``, ``contact_score``, ``contact_speed``, ...).
+        ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does."""
+        action = self._validated_action(action, state.batch_size)
+        pose, velocity, integral, error, step_count, out = self._transition(
+            state["pose"],
+            state["velocity"],
+            state["ocean_current"],
+            state["integral"],
+            state["previous_error"],
+            state["step_count"],
+            action,
+            None,
+        )
+        values = (pose, velocity, state["ocean_current"], integral, error, step_count)
+        next_state = TensorDict(
+            dict(zip(self.STATE_KEYS, values, strict=True)),
+            batch_size=state.batch_size,
+            device=self.device,
+        )
+        return next_state, out

@@ -1,0 +1,118 @@
+"""The simulation step of :class:`~dockingrl.env.DockingEnv` as one pure tensor function of the
+batched state: the PID (Sec. 4.1, or the episode's vehicle of the realism options), eqs. 36-38,
+the observation of eq. 2 and Table 2's noise, the reward of eq. 12 and the episode's end."""
+
+from __future__ import annotations
+
+import torch
+
+from dockingrl.env.config import DockingConfig
+from dockingrl.env.dynamics import (
+    noisy_observation,
+    observation_from_state,
+    pid_thrust,
+    pose_update,
+    velocity_update,
+)
+from dockingrl.env.realism import limit_thrust
+from dockingrl.env.reward import contact_score
+
+
+def make_transition(
+    config: DockingConfig,
+    kp: torch.Tensor,
+    ki: torch.Tensor,
+    kd: torch.Tensor,
+    inertia: torch.Tensor,
+    noise_std: torch.Tensor,
+    step_reward,
+):
+    """The step ``transition(pose, velocity, current, integral, previous_error, step_count,
+    action, noise, vehicle=None) -> (pose, velocity, integral, error, step_count, out)``, what
+    ``compile_step`` hands to ``torch.compile``: ``kp``, ``ki``, ``kd`` ``(2,)`` (surge, yaw)
+    and ``inertia`` ``(3,)`` the nominal vehicle's, unless ``vehicle`` (the episode's, of
+    :func:`~dockingrl.env.realism.vehicle_parameters`) is given; ``noise`` the step's
+    standard-normal draws of Table 2 (sigmas ``noise_std``) or ``None``; ``step_reward`` eq. 12
+    (:meth:`DockingEnv.step_reward <dockingrl.env.DockingEnv.step_reward>`); ``out`` the step's
+    entries (``observation``, ``true_state``, ``reward``, the done flags, ``success``,
+    ``contact_score``, ``contact_speed``)."""
+    cfg = config
+    speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
+
+    def transition(
+        pose,
+        velocity,
+        current,
+        integral,
+        previous_error,
+        step_count,
+        action,
+        noise,
+        vehicle=None,
+    ):
+        error = action - velocity[:, 0::2]
+        if vehicle is None:
+            tau, integral = pid_thrust(
+                error, integral, previous_error, kp, ki, kd, cfg.dt, cfg.max_thrust
+            )
+            masses, damping = inertia, (cfg.linear_damping, cfg.quadratic_damping)
+        else:
+            thrust = vehicle["max_thrust"]
+            tau, integral = pid_thrust(
+                error,
+                integral,
+                previous_error,
+                vehicle["kp"],
+                vehicle["ki"],
+                vehicle["kd"],
+                cfg.dt,
+                thrust,
+            )
+            tau = limit_thrust(tau, thrust, cfg.reverse_thrust_loss, cfg.turning_surge_loss)
+            masses, damping = vehicle["inertia"], (vehicle["linear"], vehicle["quadratic"])
+        tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
+        velocity = velocity_update(
+            velocity,
+            tau3,
+            masses,
+            *damping,
+            cfg.max_acceleration,
+            cfg.max_velocity,
+            cfg.dt,
+        )
+        pose = pose_update(pose, velocity, current, cfg.dt)
+        step_count = step_count + 1
+
+        x, y, alpha = pose.unbind(-1)
+        u, v, r = velocity.unbind(-1)
+        observation = observation_from_state(x, y, alpha, u, v, r, current)
+        rho, vx, vy = observation[:, 0], observation[:, 3], observation[:, 4]
+        speed = torch.sqrt(vx * vx + vy * vy)
+        contact = (
+            (x >= cfg.dock_x[0])
+            & (x <= cfg.dock_x[1])
+            & (y >= cfg.dock_y[0])
+            & (y <= cfg.dock_y[1])
+        )
+        score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
+        score = torch.where(contact, score, torch.zeros_like(score))
+        reward = step_reward(rho, tau, speed, score)
+        if noise is not None:
+            observation = noisy_observation(observation, noise, noise_std)
+        terminated = contact.unsqueeze(-1)
+        truncated = (step_count >= cfg.max_steps) & ~terminated
+        success = contact & (score > 0) & (speed <= speed_limit)
+        out = {
+            "observation": observation,
+            "true_state": torch.cat((pose, velocity), dim=-1),
+            "reward": reward.unsqueeze(-1),
+            "done": terminated | truncated,
+            "terminated": terminated,
+            "truncated": truncated,
+            "success": success.unsqueeze(-1),
+            "contact_score": score.unsqueeze(-1),
+            "contact_speed": torch.where(contact, speed, torch.zeros_like(speed)).unsqueeze(-1),
+        }
+        return pose, velocity, integral, error, step_count, out
+
+    return transition
