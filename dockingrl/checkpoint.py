@@ -13,7 +13,7 @@ from dockingrl.io import (
     check_folder,
     folder_manifest,
     read_artifact,
-    read_old_artifact,
+    read_to_upgrade,
     require_keys,
     save_artifact,
 )
@@ -94,12 +94,10 @@ def upgrade_state(path: str | Path) -> str:
     """Rewrite the checkpoint state ``path`` (``step_*/state.pt``) of an older format in the
     current one, trusting its ``replay/`` folder as it is; returns what was done."""
     path = Path(path)
-    state = read_old_artifact(path, WHAT)
-    found = state.get("format")
-    if found == FORMAT:
+    state = read_to_upgrade(path, WHAT, FORMAT, OLD_FORMATS)
+    if state is None:
         return f"{path}: already {FORMAT}"
-    if found not in OLD_FORMATS:
-        raise ArtifactError(f"{path}: not a {WHAT}: its format is {found!r}")
+    found = state["format"]
     require_keys(path, state, WHAT, KEYS)
     del state["format"]
     state.pop("replay", None)

@@ -141,6 +141,19 @@ def read_old_artifact(path: str | Path, what: str) -> dict:
     return _unpickle(path, data, what)
 
 
+def read_to_upgrade(path: str | Path, what: str, format: str, old: Iterable[str]) -> dict | None:
+    """The payload of the ``what`` at ``path`` (:func:`read_old_artifact`) when its format is
+    one of the older ``old``, to convert; ``None`` when it is ``format`` already. Raises
+    :class:`ArtifactError` for any other format."""
+    payload = read_old_artifact(path, what)
+    found = payload.get("format")
+    if found == format:
+        return None
+    if found not in tuple(old):
+        raise ArtifactError(f"{path}: not a {what}: its format is {found!r}")
+    return payload
+
+
 def upgrade_message(path: str | Path, what: str, found: str) -> str:
     """The one line refusing ``path``, a ``what`` of the older format ``found``."""
     return (

@@ -12,7 +12,7 @@ from dockingrl.io import (
     ArtifactError,
     first_line,
     read_artifact,
-    read_old_artifact,
+    read_to_upgrade,
     require_keys,
     save_artifact,
 )
@@ -119,12 +119,10 @@ def upgrade_payload(payload: Mapping) -> dict:
 def upgrade_filter_params(path: str | Path) -> str:
     """Rewrite the filter-parameter file ``path`` of an older format in the current one
     (atomically); returns what was done."""
-    payload = read_old_artifact(path, WHAT)
-    found = payload.get("format")
-    if found == FORMAT:
+    payload = read_to_upgrade(path, WHAT, FORMAT, OLD_FORMATS)
+    if payload is None:
         return f"{path}: already {FORMAT}"
-    if found not in OLD_FORMATS:
-        raise ArtifactError(f"{path}: not a {WHAT}: its format is {found!r}")
+    found = payload["format"]
     require_keys(path, payload, WHAT, ("process_noise", "measurement_noise"))
     save_artifact(path, upgrade_payload(payload))
     return f"{path}: {found} -> {FORMAT}"
