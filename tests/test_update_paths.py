@@ -72,3 +72,23 @@ def test_fast_update_computes_the_default_update_up_to_rounding(algo):
         assert torch.allclose(ours[key], default[key], rtol=1e-4, atol=1e-5), key
     # the updates moved the weights well beyond the tolerance
     assert any((default[k] - start[k]).abs().max() > 1e-3 for k in ours)
+
+
+def test_fast_update_ppo_estimates_the_same_advantages_in_chunks():
+    spec = make_env("compound", 1, seed=0).action_spec[0]
+    agents = {}
+    for fast in (False, True):
+        torch.manual_seed(0)
+        cfg = make_config(
+            "ppo", "paper", hidden=(32, 32), steps_per_env=8, minibatch_size=8, fast_update=fast
+        )
+        agents[fast] = make_agent(cfg, OBS, spec, 30.0, "cpu")
+    assert agents[True].advantage.value_chunk_size == 2048 // 8
+    data = transitions(600 * 8).reshape(600, 8)  # three chunks of 256 envs and fewer
+    data["next", "done"][::7, 3] = True
+    data["next", "terminated"][::7, 3] = True
+    with torch.no_grad():
+        default, chunked = (agents[f].advantage(data.clone()) for f in (False, True))
+    for key in ("advantage", "value_target", "state_value"):
+        assert torch.allclose(default[key], chunked[key], rtol=1e-5, atol=1e-5), key
+    assert default["advantage"].std() > 0.1

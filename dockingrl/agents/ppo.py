@@ -14,6 +14,18 @@ from dockingrl.agents.config import PPOConfig
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
 from dockingrl.agents.networks import QValueModule, mlp
 
+#: rows of the value network's input per call while estimating advantages with
+#: ``fast_update``: activations that stay in a CPU's cache
+GAE_CHUNK_ROWS = 2048
+
+
+def gae_chunks(cfg: PPOConfig) -> dict:
+    """``GAE`` options that call the value network on chunks of whole envs, about
+    ``GAE_CHUNK_ROWS`` rows each, observations and next observations apart, instead of once
+    under ``vmap`` on both stacked: 0.36x the time for the ``ppo`` recipe's 256 x 64 steps on a
+    1-thread CPU (other roundings: ``fast_update`` only)."""
+    return {"value_chunk_size": max(1, GAE_CHUNK_ROWS // cfg.steps_per_env)}
+
 
 class PPOAgent(Agent):
     """Proximal policy optimisation with the clipped objective."""
@@ -31,7 +43,11 @@ class PPOAgent(Agent):
         value_net = symmetric(value_net, mirror_observation_signs(cfg, obs_dim, "critic"), (1.0,))
         critic = QValueModule(value_net, in_keys=["observation"]).to(device)
         advantage = GAE(
-            gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False
+            gamma=cfg.gamma,
+            lmbda=cfg.gae_lambda,
+            value_network=critic,
+            average_gae=False,
+            **(gae_chunks(cfg) if cfg.fast_update else {}),
         )
         loss = ClipPPOLoss(
             actor_network=actor,
@@ -76,7 +92,7 @@ class PPOAgent(Agent):
         for _ in range(cfg.epochs):
             with torch.no_grad():
                 self.advantage(data)
-            flat = data.reshape(-1)
+            flat = data.reshape(-1).select(*self._minibatch_keys(), strict=False)
             order = torch.randperm(frames, generator=self.extra["generator"])
             for start in range(0, frames, cfg.minibatch_size):
                 batch = flat[order[start : start + cfg.minibatch_size]]
@@ -90,6 +106,12 @@ class PPOAgent(Agent):
                     logs.setdefault(key, []).append(scalar(value))
         logs["lr"] = [lr]
         return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _minibatch_keys(self) -> list:
+        """What a minibatch carries: the loss's inputs and the advantage estimator's outputs
+        (the rollout's other entries, filter state and logs, would be copied by each shuffled
+        minibatch for nothing: 3.2 ms of a recipe minibatch of 2,048 against 0.6 ms)."""
+        return [*self.loss.in_keys, "advantage", "value_target", "state_value"]
 
     def _grad_ppo(self, batch):
         out = self.loss(batch)
