@@ -18,12 +18,12 @@ from dockingrl.env.reward import (
     entry_velocity_reward,
     thrust_reward,
 )
-from dockingrl.env.specs import ACTION_DIM, OBSERVATION_DIM, docking_specs
+from dockingrl.env.specs import ACTION_DIM, OBSERVATION_DIM, TRUE_STATE_DIM, docking_specs
 from dockingrl.env.starts import paper_start, pinned, training_start
 from dockingrl.env.state_access import StateAccessMixin
 from dockingrl.env.step import make_transition
 
-__all__ = ["ACTION_DIM", "OBSERVATION_DIM", "REALISM_SEED_OFFSET", "DockingEnv"]
+__all__ = ["ACTION_DIM", "OBSERVATION_DIM", "REALISM_SEED_OFFSET", "TRUE_STATE_DIM", "DockingEnv"]
 
 #: added to the env's seed for its realism generator (:attr:`DockingEnv.realism_rng`)
 REALISM_SEED_OFFSET = 0x5EA1
