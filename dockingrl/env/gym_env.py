@@ -29,14 +29,16 @@ import torch
 from gymnasium import spaces
 
 from dockingrl.env.config import DockingConfig
-from dockingrl.env.docking import ACTION_DIM, OBSERVATION_DIM, DockingEnv
+from dockingrl.env.docking import DockingEnv
+from dockingrl.env.specs import ACTION_DIM, OBSERVATION_DIM
+from dockingrl.env.state_access import StateAccessMixin
 from dockingrl.env.transition import SimulatorState, paper_step
 
 #: the entries of ``info`` read from the env's outputs as Python numbers
 _INFO_NUMBERS = (("success", bool), ("contact_score", float), ("contact_speed", float))
 #: the attributes of :class:`DockingEnv` that hold its state, in the order of
 #: :meth:`DockingGymEnv._tensor_step`
-_SIMULATOR_STATE = ("_pose", "_velocity", "_current", "_integral", "_previous_error", "_step_count")
+_SIMULATOR_STATE = StateAccessMixin._STATE_ATTRIBUTES
 #: what ``reset(options=...)`` accepts: a start pose and a current for that episode
 RESET_OPTIONS = ("pose", "ocean_current")
 
