@@ -8,53 +8,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from dockingrl.env import DockingConfig
+from dockingrl.env.levels import LEVELS, level_config
 
-#: 1 Hz USBL, 0.6 s late, 20 % of the fixes lost in bursts of 3, 5 % outliers 5 m off; a
-#: 2.5 Hz DVL
-HARSH_SENSORS = {
-    "usbl_period": 1.0,
-    "usbl_latency": 0.6,
-    "usbl_dropout_probability": 0.2,
-    "usbl_dropout_burst": 3.0,
-    "usbl_outlier_probability": 0.05,
-    "usbl_outlier_distance": 5.0,
-    "dvl_period": 0.4,
-}
-#: a current varying by 0.05 m/s over 30 s, believed with a 0.05 m/s bias and 0.02 m/s noise
-HARSH_CURRENT = {
-    "current_time_constant": 30.0,
-    "current_variation_std": 0.05,
-    "current_knowledge_bias": 0.05,
-    "current_knowledge_noise": 0.02,
-}
-#: +-30 % mass, damping and PID gains, +-20 % thrust, a response up to 3x slower, 40 % less
-#: thrust in reverse and half the surge thrust at full yaw moment
-HARSH_DYNAMICS = {
-    "mass_scale": (0.7, 1.3),
-    "damping_scale": (0.7, 1.3),
-    "thrust_scale": (0.8, 1.2),
-    "pid_gain_scale": (0.7, 1.3),
-    "response_time_scale": (1.0, 3.0),
-    "reverse_thrust_loss": 0.4,
-    "turning_surge_loss": 0.5,
-}
-#: the ladder: name -> (what it is, the DockingConfig options it sets)
-LEVELS: dict[str, tuple[str, dict]] = {
-    "L0": ("the paper's task", {}),
-    "L1": ("sensors: 1 Hz USBL, late, dropouts, outliers; slow DVL", HARSH_SENSORS),
-    "L2": ("current: varying, known with bias and noise", HARSH_CURRENT),
-    "L3": ("dynamics: +-30 % vehicle, 3x slower loops, weak reverse", HARSH_DYNAMICS),
-    "L4": ("sensors and current", {**HARSH_SENSORS, **HARSH_CURRENT}),
-    "L5": ("sensors, current and dynamics", {**HARSH_SENSORS, **HARSH_CURRENT, **HARSH_DYNAMICS}),
-}
 FAILURES = ("timeout", "missed_funnel", "too_fast")
-
-
-def level_config(level: str, base: DockingConfig | None = None) -> DockingConfig:
-    """The :class:`DockingConfig` of a ladder level: ``base`` (the paper's) with its options."""
-    if level not in LEVELS:
-        raise ValueError(f"unknown stress level {level!r}; valid: {', '.join(LEVELS)}")
-    return (base or DockingConfig()).replace(**LEVELS[level][1])
 
 
 def stress_ladder(

@@ -23,6 +23,7 @@ from dockingrl.agents import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
 from dockingrl.agents.saving import pipeline_options, save_policy
 from dockingrl.env import DockingConfig
+from dockingrl.env.levels import level_config
 from dockingrl.evaluation import base_env, describe_machine, evaluate
 from dockingrl.io import atomic_write, write_json
 from dockingrl.scenarios import check_mirror_symmetric, make_env
@@ -225,10 +226,10 @@ def read_curves(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
 
 def env_kwargs(cfg: TrainConfig) -> dict:
     """The :func:`~dockingrl.make_env` options a training config implies (sensor-noise
-    scaling, learned filter parameters, and :func:`pipeline_options`)."""
-    kwargs: dict = {
-        "config": DockingConfig().scale_usbl_noise(cfg.range_noise_scale, cfg.bearing_noise_scale)
-    }
+    scaling, the realism options of its ``train_level``, learned filter parameters, and
+    :func:`pipeline_options`)."""
+    config = DockingConfig().scale_usbl_noise(cfg.range_noise_scale, cfg.bearing_noise_scale)
+    kwargs: dict = {"config": level_config(cfg.train_level, config)}
     if cfg.filter_params:
         kwargs["filter_params"] = read_filter_params(cfg.filter_params)
     kwargs.update(pipeline_options(cfg.to_dict()))

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from dockingrl.agents.config import SACConfig
 from dockingrl.grid import config_mismatch, load_grid, progress
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,6 +76,12 @@ def test_bad_grid_files_are_refused_before_anything_runs(tmp_path, text, message
 def test_a_trial_of_another_config_is_named():
     saved = {"gamma": 0.99, "threads": 1, "hidden": [32, 32]}
     assert config_mismatch(saved, {"gamma": 0.98, "threads": 2, "hidden": (32, 32)}) == ["gamma"]
+    # a field added after the run started counts as its default in the saved config
+    defaults = SACConfig().to_dict()
+    wanted = {**saved, "train_level": "L0"}
+    assert config_mismatch(saved, wanted, defaults) == []
+    assert config_mismatch(saved, {**saved, "train_level": "L5"}, defaults) == ["train_level"]
+    assert config_mismatch(saved, wanted) == ["train_level"]  # without defaults: differs
 
 
 def test_progress_reads_the_end_of_the_curves(tmp_path):

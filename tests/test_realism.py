@@ -392,7 +392,7 @@ def test_filter_skips_held_readings_and_beats_one_that_takes_them_as_new():
 
 # -- the stress ladder -------------------------------------------------------------------------
 def test_stress_levels_are_valid_configs_and_l5_holds_every_option():
-    from dockingrl.stress import LEVELS, level_config
+    from dockingrl.env.levels import LEVELS, level_config
 
     assert level_config("L0") == DockingConfig()
     harshest = level_config("L5")

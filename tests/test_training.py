@@ -571,6 +571,28 @@ def test_time_budget_stops_training_early_and_says_so(tmp_path, short_episodes):
         tiny_config("ppo", "noise", tmp_path, time_budget_s=-1.0)
 
 
+def test_train_level_sets_the_whole_world_of_the_run(tmp_path, short_episodes, monkeypatch):
+    from dockingrl import training
+    from dockingrl.env.levels import LEVELS
+
+    built = []
+    make_env = training.make_env
+    monkeypatch.setattr(
+        training, "make_env", lambda *a, **k: built.append(k["config"]) or make_env(*a, **k)
+    )
+    cfg = tiny_config("sac", "compound", tmp_path, train_level="L5")
+    world = training.env_kwargs(cfg)["config"]
+    assert world.realistic and world.usbl_period == LEVELS["L5"][1]["usbl_period"]
+    assert world.mass_scale == LEVELS["L5"][1]["mass_scale"]
+    assert not training.env_kwargs(tiny_config("sac", "compound", tmp_path))["config"].realistic
+    result = train(cfg, progress=False)
+    assert built and all(config.realistic for config in built)  # probe and training envs
+    saved = json.loads((Path(result["run_dir"]) / "config.json").read_text())
+    assert saved["train_level"] == "L5"
+    with pytest.raises(ValueError, match="train_level: unknown stress level; valid: L0, L1"):
+        tiny_config("sac", "compound", tmp_path, train_level="L9")
+
+
 def test_ppo_stable_baselines3_style_policy_options(tmp_path, short_episodes):
     """``state_independent_scale``: one learned scale per action, the same for every
     observation; ``orthogonal_init``: orthogonal layers, a near-zero policy output; ``tanh``

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any, get_type_hints
 
 from dockingrl.env.config import noise_scale_problem
+from dockingrl.env.levels import LEVELS
 from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
 
 LOGGERS = ("wandb", "csv", "none")
@@ -116,6 +117,12 @@ class TrainConfig:
         "(0: off; not in the paper)",
         default=0.0,
     )
+    train_level: str = _doc(
+        "stress-ladder level (L0-L5, docs/realism.md) whose realism options the run's world "
+        "takes: its training env and all its evaluations (L0: the paper's task; not in the "
+        "paper)",
+        default="L0",
+    )
     miss_penalty_floor: float = _doc(
         "training reward: a miss (g <= 0) costs at most this on contact instead of 200 |g| "
         "(0: off; not in the paper)",
@@ -197,6 +204,8 @@ class TrainConfig:
                 fail(f.name, "must be finite")
         if self.scenario not in SCENARIOS:
             fail("scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
+        if self.train_level not in LEVELS:
+            fail("train_level", f"unknown stress level; valid: {', '.join(LEVELS)}")
         if self.logger not in LOGGERS:
             fail("logger", f"valid: {', '.join(LOGGERS)}")
         _check_ranges(

@@ -6,10 +6,11 @@ import argparse
 import time
 
 from dockingrl.cli.arguments import COUNT, POSITIVE, policy_from_args
+from dockingrl.env.levels import LEVELS
 from dockingrl.evaluation import describe_machine
 from dockingrl.policies import trained_filter_options
 from dockingrl.provenance import command_line
-from dockingrl.stress import LEVELS, stress_ladder, stress_table, write_stress
+from dockingrl.stress import stress_ladder, stress_table, write_stress
 
 
 def cmd_stress(args: argparse.Namespace) -> int:

@@ -31,12 +31,18 @@ def finished_summary(grid: Grid, trial: Trial) -> dict | None:
     return None
 
 
-def config_mismatch(saved: dict, wanted: dict) -> list[str]:
+def config_mismatch(saved: dict, wanted: dict, defaults: dict | None = None) -> list[str]:
     """The fields (beyond where and how fast it runs) in which a saved config differs from
-    the one the grid asks for now."""
+    the one the grid asks for now. A field the saved config lacks (one added to dockingrl
+    after the run started) counts as its value in ``defaults``, the config class's defaults."""
+
+    def plain(config: dict) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()}
+
+    old = {**plain(defaults or {}), **saved}
     keys = (set(saved) | set(wanted)) - set(_HOW_NOT_WHAT)
-    norm = {k: (list(v) if isinstance(v, tuple) else v) for k, v in wanted.items()}
-    return sorted(k for k in keys if saved.get(k) != norm.get(k))
+    norm = plain(wanted)
+    return sorted(k for k in keys if old.get(k) != norm.get(k))
 
 
 def progress(run_dir: Path) -> dict:

@@ -35,7 +35,7 @@ def run_trial(trial: Trial, out: str, threads: int) -> dict:
                     cfg = trial.config(Path(out), threads)
                     saved = read_json(run_dir / "config.json")
                     if saved is not None:
-                        changed = config_mismatch(saved, cfg.to_dict())
+                        changed = config_mismatch(saved, cfg.to_dict(), type(cfg)().to_dict())
                         if changed:
                             raise ValueError(
                                 f"{run_dir} holds a run of another config ({', '.join(changed)} "
