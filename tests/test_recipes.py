@@ -112,6 +112,8 @@ def test_a_recipe_file_and_overrides(tmp_path):
         ("algo: sac\nconfig:\n  gamma: 2.0\n", "gamma"),
         ("algo: sac\nrecipe_of: x\n", "unknown key"),
         ("[1, 2]\n", "expected a mapping"),
+        ("base: sac\nalgo: ppo\n", "differs from its base's"),
+        ("base: no-such-recipe\n", "unknown recipe 'no-such-recipe'"),
         ("algo: sac\nconfig: [\n", "not valid YAML"),
     ],
 )
@@ -121,6 +123,20 @@ def test_bad_recipe_files_are_one_line_errors(tmp_path, text, message):
     with pytest.raises(ValueError, match=message) as info:
         load_recipe(path)
     assert "\n" not in str(info.value)
+
+
+def test_a_recipe_starts_from_its_base(tmp_path):
+    robust = load_recipe("sac-robust")
+    assert robust.algo == "sac"
+    assert robust.config == {**load_recipe("sac").config, "train_level": "L5"}
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("base: sac-robust\nconfig:\n  lr: 0.001\n")
+    cfg = load_recipe(mine).make_config()
+    assert (cfg.lr, cfg.train_level, cfg.action_repeat, cfg.recipe) == (0.001, "L5", 4, "mine")
+    loop = tmp_path / "loop.yaml"
+    loop.write_text(f"base: {loop}\n")
+    with pytest.raises(ValueError, match="nest deeper than 8"):
+        load_recipe(loop)
 
 
 def test_an_unknown_recipe_name_lists_the_shipped_ones():

@@ -8,6 +8,7 @@ listed by :func:`recipe_names` or the path of a YAML file of the same form::
 
     algo: sac                 # sac, td3 or ppo
     description: one line     # optional
+    base: sac                 # optional: a recipe whose fields this one starts from
     config:                   # fields of the algorithm's config
       num_envs: 16
       hidden: [256, 256]
@@ -24,7 +25,9 @@ from typing import Any
 
 from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
 
-_KEYS = ("algo", "description", "config")
+_KEYS = ("algo", "description", "base", "config")
+#: how deep ``base`` recipes may nest (a deeper chain is taken for a cycle)
+_MAX_BASES = 8
 
 
 @dataclass(frozen=True)
@@ -58,13 +61,16 @@ def recipe_names() -> list[str]:
     return sorted(p.name[: -len(".yaml")] for p in root.iterdir() if p.name.endswith(".yaml"))
 
 
-def load_recipe(spec: str | Path) -> Recipe:
+def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
     """The shipped recipe named ``spec``, or the recipe in the YAML file at path ``spec``.
 
     Raises ``ValueError`` (one line) for an unknown name, an unreadable or malformed file, an
-    unknown algorithm or config field, or a value of the wrong type."""
+    unknown algorithm or config field, a value of the wrong type, or a ``base`` of another
+    algorithm or in a cycle."""
     import yaml
 
+    if _depth > _MAX_BASES:
+        raise ValueError(f"recipe {spec}: its bases nest deeper than {_MAX_BASES} (a cycle?)")
     spec = str(spec)
     if spec in recipe_names():
         name, text = spec, resources.files(__package__).joinpath(f"{spec}.yaml").read_text()
@@ -89,13 +95,22 @@ def load_recipe(spec: str | Path) -> Recipe:
     extra = sorted(set(data) - set(_KEYS))
     if extra:
         raise ValueError(f"recipe {spec}: unknown key(s) {', '.join(map(str, extra))}")
+    base = None
+    if data.get("base") is not None:
+        base = load_recipe(str(data["base"]), _depth + 1)
+        if data.get("algo", base.algo) != base.algo:
+            raise ValueError(
+                f"recipe {spec}: algo {data['algo']!r} differs from its base's ({base.algo!r})"
+            )
+        data.setdefault("algo", base.algo)
     algo = data.get("algo")
     if algo not in CONFIGS:
         raise ValueError(f"recipe {spec}: algo must be one of {', '.join(CONFIGS)} (got {algo!r})")
     config = data.get("config") or {}
     if not isinstance(config, dict):
         raise ValueError(f"recipe {spec}: config must be a mapping of fields")
-    recipe = Recipe(name, algo, str(data.get("description") or ""), dict(config))
+    config = {**(base.config if base else {}), **config}
+    recipe = Recipe(name, algo, str(data.get("description") or ""), config)
     try:
         check_types(algo, config)
         recipe.make_config()
