@@ -432,3 +432,42 @@ def test_stress_command_writes_table_json_and_plot(tmp_path, capsys):
         + round(result["levels"][1]["success_rate"] * 3 / 100)
         == 3
     )
+
+
+def test_get_and_set_state_carry_the_realism_state():
+    from dockingrl.env.levels import level_config
+
+    env = DockingEnv(4, config=level_config("L5"), seed=3)
+    td = env.reset()
+    action = torch.tensor([[0.6, 0.1]]).expand(4, 2)
+    for _ in range(7):  # mid USBL period, ages and held readings away from their reset values
+        td = env.step(td.set("action", action))["next"]
+    state = env.get_state()
+    assert set(state["realism"].keys()) >= {"scales", "held", "sensor_steps", "current_bias"}
+    generators = env.rng.get_state(), env.realism_rng.get_state()
+
+    def rollout():
+        out = env.step(TensorDict({"action": action}, batch_size=[4]))["next"]
+        return [out["observation"]] + [
+            env.step(TensorDict({"action": action}, batch_size=[4]))["next"]["observation"]
+            for _ in range(5)
+        ]
+
+    first = rollout()
+    for _ in range(3):  # move every realism state on, then go back
+        env.step(TensorDict({"action": -action}, batch_size=[4]))
+    env.set_state(state)
+    env.rng.set_state(generators[0])
+    env.realism_rng.set_state(generators[1])
+    second = rollout()
+    for a, b in zip(first, second, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    # the realism state must come with it, and only to an env that has realism on
+    with pytest.raises(KeyError, match="state lacks 'realism'"):
+        env.set_state(state.exclude("realism"))
+    with pytest.raises(ValueError, match="this env has no realism on"):
+        DockingEnv(4, seed=0).set_state(state)
+    bad = state.clone()
+    bad["realism", "sensor_steps"] = bad["realism", "sensor_steps"] - 100
+    with pytest.raises(ValueError, match=r"\['sensor_steps'\] must hold integers >= 0"):
+        env.set_state(bad)

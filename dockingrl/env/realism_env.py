@@ -36,6 +36,23 @@ class RealismMixin:
         copy; ``None`` when no dynamics-mismatch option is on."""
         return None if self._vehicle is None else self._scales.clone()
 
+    def _realism_attributes(self) -> tuple[str, ...]:
+        """The attributes holding the realism options' per-env state (those that are on)."""
+        cfg = self.config
+        names: tuple[str, ...] = ()
+        if cfg.dynamics_mismatch:
+            names += ("_scales",)
+        if cfg.current_model:
+            names += ("_current_mean", "_current_bias", "_known_current")
+        if cfg.sensor_timing:
+            names += ("_held", "_sensor_steps", "_usbl_history", "_lost")
+        return names
+
+    def _after_realism_state_set(self) -> None:
+        """Recompute what derives from the realism state (the episode's vehicle)."""
+        if self.config.dynamics_mismatch:
+            self._vehicle = vehicle_parameters(self.config, self._scales)
+
     def _make_realism_state(self) -> None:
         """The per-env state of the realism options that are on (docs/realism.md)."""
         cfg, n, dev, dtype = self.config, self.num_envs, self.device, self.dtype

@@ -10,7 +10,8 @@ from tensordict import TensorDict, TensorDictBase
 class StateAccessMixin:
     """:meth:`get_state`, :meth:`set_state` and :meth:`simulate` of
     :class:`~dockingrl.env.DockingEnv` (which holds the state in the attributes
-    :attr:`_STATE_ATTRIBUTES` and gives ``_transition`` and ``_validated_action``)."""
+    :attr:`_STATE_ATTRIBUTES` and gives ``_transition``, ``_validated_action`` and, from its
+    realism part, ``_realism_attributes`` and ``_after_realism_state_set``)."""
 
     #: the simulator's whole state, as :meth:`get_state` returns it (``step_count`` is int64),
     #: and the attribute holding each entry
@@ -27,14 +28,17 @@ class StateAccessMixin:
     def get_state(self) -> TensorDict:
         """The simulator's whole state, a copy: ``pose`` ``(n, 3)``, ``velocity`` ``(n, 3)``,
         ``ocean_current`` ``(n, 2)``, the PID's ``integral`` and ``previous_error`` ``(n, 2)``
-        and ``step_count`` ``(n, 1)``. With :meth:`set_state` and :meth:`simulate` it lets a
-        planner roll the dynamics forward from any state (:mod:`dockingrl.planning`)."""
+        and ``step_count`` ``(n, 1)``; with realism options on, also ``realism``: their per-env
+        state (the episode's vehicle factors, the current's mean, bias and believed value, the
+        held readings, the sensors' ages, the USBL's delay line and its dropout state). With
+        :meth:`set_state` and :meth:`simulate` it lets a planner roll the dynamics forward
+        from any state (:mod:`dockingrl.planning`)."""
         pairs = zip(self.STATE_KEYS, self._STATE_ATTRIBUTES, strict=True)
-        return TensorDict(
-            {key: getattr(self, name).clone() for key, name in pairs},
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        state = {key: getattr(self, name).clone() for key, name in pairs}
+        realism = self._realism_attributes()
+        if realism:
+            state["realism"] = {name.lstrip("_"): getattr(self, name).clone() for name in realism}
+        return TensorDict(state, batch_size=self.batch_size, device=self.device)
 
     def set_state(self, state: TensorDictBase) -> None:
         """Continue from ``state`` (as :meth:`get_state` returns it, same batch size and
@@ -61,8 +65,40 @@ class StateAccessMixin:
             elif not bool(torch.isfinite(value).all()):
                 raise ValueError(f"state[{key!r}] must be finite")
             values[name] = value.to(device=self.device, dtype=expected.dtype).clone()
+        values.update(self._checked_realism_state(state))
         for name, value in values.items():
             setattr(self, name, value)
+        self._after_realism_state_set()
+
+    def _checked_realism_state(self, state: TensorDictBase) -> dict[str, torch.Tensor]:
+        """The realism options' state in ``state["realism"]``, checked against the env's."""
+        names = self._realism_attributes()
+        if not names:
+            if "realism" in state.keys():
+                raise ValueError("state has a 'realism' entry, but this env has no realism on")
+            return {}
+        if "realism" not in state.keys():
+            raise KeyError(
+                "state lacks 'realism': this env's realism options are on (get_state gives it)"
+            )
+        realism, values = state["realism"], {}
+        for name in names:
+            key, expected = name.lstrip("_"), getattr(self, name)
+            if key not in realism.keys():
+                raise KeyError(f"state['realism'] lacks {key!r}")
+            value = realism[key]
+            if value.shape != expected.shape:
+                raise ValueError(
+                    f"state['realism'][{key!r}] must have shape {tuple(expected.shape)}, "
+                    f"got {tuple(value.shape)}"
+                )
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise ValueError(f"state['realism'][{key!r}] must be finite")
+            if not value.is_floating_point() and value.dtype != torch.bool:
+                if bool((value < 0).any()):
+                    raise ValueError(f"state['realism'][{key!r}] must hold integers >= 0")
+            values[name] = value.to(device=self.device, dtype=expected.dtype).clone()
+        return values
 
     def simulate(
         self, state: TensorDictBase, action: torch.Tensor
