@@ -53,7 +53,6 @@ LAYERS = {
 STILL_TO_SPLIT = {
     "dockingrl/agents/config.py",
     "dockingrl/training.py",
-    "dockingrl/transforms/ekf.py",
 }
 
 MAX_LINES = 400
