@@ -1,18 +1,27 @@
 """Gradient updates per second of the TorchRL agents at the paper's sizes, beside a minimal
-plain-PyTorch implementation of the same update, in the same process.
+plain-PyTorch implementation of the same update, in the same process, and the floor: the
+update's matrix-product FLOPs over this CPU's measured matmul rate at those shapes.
 
-Usage: ``python bench/update_speed.py [--seconds 5] [--rounds 5] [--algos sac td3 ppo]
-[--device cuda]``
+Usage: ``python bench/update_speed.py [--seconds 5] [--rounds 5] [--threads 1]
+[--algos sac td3 ppo] [--device cuda] [--no-compile]``
 
 TorchRL and plain updates are timed in alternating rounds, so that a drift in the machine's
-speed (frequent on shared CPUs) hits both alike.
+speed (frequent on shared CPUs) hits all alike; the ratios are medians of per-round ratios.
 
-Each is also run through ``torch.compile`` (TorchRL: the agent's ``compile_update`` option, which
-compiles forward and backward of the loss; plain: the whole update function).
+Rows: the agent as the recipes build it; with ``fast_update`` (fused Adam, and on a CPU the
+twin critics as plain matrix products instead of vmap's batched ones: other roundings, hence
+opt-in); and each through ``torch.compile`` (TorchRL: the agent's ``compile_update`` option,
+which compiles forward and backward of the loss; plain: the whole update function).
+
+The floor: the FLOPs of the matrix products of one plain update (forward and backward, counted
+by ``torch.utils.flop_counter``) and the time the same products take, replayed alone on
+contiguous operands at the bench's thread count (the best of several repetitions): the update
+if everything but its matrix products were free.
 
 SAC and TD3: one update = one minibatch of 256 transitions from a replay buffer (critics,
 actor, target networks). PPO: one update = one minibatch of 64 of a rollout (clipped objective,
-value loss, gradient clipping). Observations are the compound ones (12 numbers).
+value loss, gradient clipping); ``--ppo-minibatch 2048`` times the ``ppo`` recipe's size.
+Observations are the compound ones (12 numbers).
 """
 
 from __future__ import annotations
@@ -34,6 +43,7 @@ from dockingrl.scenarios import make_env
 
 OBS, ACT = 12, 2
 DEVICE = torch.device("cpu")  # set by --device
+PPO_MINIBATCH = 64  # set by --ppo-minibatch
 
 
 def transitions(n: int) -> TensorDict:
@@ -73,12 +83,16 @@ def rate(step, seconds: float) -> float:
 
 
 # -- TorchRL -------------------------------------------------------------------------------
-def torchrl_update(algo: str, compile_update: bool = False):
+def torchrl_update(algo: str, compile_update: bool = False, fast_update: bool = False):
     env = make_env("compound", 1, seed=0)
-    cfg = make_config(algo, "paper", compile_update=compile_update, device=str(DEVICE))
+    cfg = make_config(algo, "paper", fast_update=fast_update, device=str(DEVICE))
+    # PPOConfig refuses compile_update (from a time when compiling ClipPPOLoss did not finish);
+    # the agent reads the field when it first runs an update
+    cfg.compile_update = compile_update
     agent = make_agent(cfg, OBS, env.action_spec[0], 30.0, DEVICE)
     if algo == "ppo":
-        data = transitions(64 * 32)
+        mb = PPO_MINIBATCH
+        data = transitions(mb * 32)
         with torch.no_grad():
             data = agent.actor(data)
             agent.advantage.value_network(data)
@@ -89,7 +103,7 @@ def torchrl_update(algo: str, compile_update: bool = False):
 
         def step():
             i = next(index) % 32
-            batch = data[i * 64 : (i + 1) * 64]
+            batch = data[i * mb : (i + 1) * mb]
             optim.zero_grad(set_to_none=True)
             agent._gradients("ppo", batch)
             torch.nn.utils.clip_grad_norm_(params, 0.5)
@@ -202,7 +216,8 @@ def plain_ppo():
     actor, critic = mlp([OBS, 256, 256, 2 * ACT]), mlp([OBS, 256, 256, 1])
     params = [*actor.parameters(), *critic.parameters()]
     optim = torch.optim.Adam(params, lr=3e-4)
-    n = 64 * 32
+    mb = PPO_MINIBATCH
+    n = mb * 32
     g = torch.Generator().manual_seed(0)
     obs, raw = torch.randn(n, OBS, generator=g), torch.randn(n, ACT, generator=g)
     old_logp, adv, ret = (
@@ -215,7 +230,7 @@ def plain_ppo():
 
     def step():
         i = next(index) % 32
-        sl = slice(i * 64, (i + 1) * 64)
+        sl = slice(i * mb, (i + 1) * mb)
         mu, log_std = actor(obs[sl]).chunk(2, -1)
         std = nn.functional.softplus(log_std) + 1e-4
         logp = torch.distributions.Normal(mu, std).log_prob(raw[sl]).sum(-1)
@@ -235,15 +250,82 @@ def plain_ppo():
 PLAIN = {"sac": plain_sac, "td3": plain_td3, "ppo": plain_ppo}
 
 
-def paired_rates(ours, plain, seconds: float, rounds: int) -> tuple[float, float, float]:
-    """Median rates of two update functions measured in alternating rounds (so that a drift in
-    the machine's speed hits both alike), and the median of the per-round time ratios."""
-    pairs = [(rate(ours, seconds / rounds), rate(plain, seconds / rounds)) for _ in range(rounds)]
+def alternating_rates(steps: dict, seconds: float, rounds: int) -> list[dict[str, float]]:
+    """Rates (updates/s) of each update function in ``steps``, measured in ``rounds``
+    alternating rounds (so that a drift in the machine's speed hits all alike): one dict of
+    rates per round."""
+    return [
+        {name: rate(step, seconds / rounds) for name, step in steps.items()} for _ in range(rounds)
+    ]
+
+
+def medians(rounds: list[dict[str, float]], base: str) -> tuple[dict, dict]:
+    """Median rate of each variant, and the median over rounds of its time over ``base``'s
+    (``base``'s rate over its)."""
+    names = rounds[0]
     return (
-        statistics.median(o for o, _ in pairs),
-        statistics.median(p for _, p in pairs),
-        statistics.median(p / o for o, p in pairs),
+        {n: statistics.median(r[n] for r in rounds) for n in names},
+        {n: statistics.median(r[base] / r[n] for r in rounds) for n in names},
     )
+
+
+def paired_rates(ours, plain, seconds: float, rounds: int) -> tuple[float, float, float]:
+    """Median rates of two update functions measured in alternating rounds, and the median of
+    the per-round time ratios (ours / plain)."""
+    rounds_ = alternating_rates({"ours": ours, "plain": plain}, seconds, rounds)
+    rates, ratios = medians(rounds_, "plain")
+    return rates["ours"], rates["plain"], ratios["ours"]
+
+
+# -- the floor ------------------------------------------------------------------------------
+MATMULS = {"aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm"}
+
+
+def matmul_shapes(step, calls: int) -> list[tuple[int, int, int, int]]:
+    """``(batch, m, k, n)`` of every matrix product ``calls`` calls of ``step`` run, forward
+    and backward (``torch.profiler``'s recorded input shapes)."""
+    from torch.profiler import profile
+
+    with profile(record_shapes=True) as prof:
+        for _ in range(calls):
+            step()
+    shapes = []
+    for event in prof.events():
+        if event.name not in MATMULS:
+            continue
+        dims = [d for d in event.input_shapes if len(d) >= 2]
+        left, right = dims[-2], dims[-1]  # addmm / baddbmm: (bias, left, right)
+        batch = left[0] if len(left) == 3 else 1
+        shapes.append((batch, left[-2], left[-1], right[-1]))
+    return shapes
+
+
+def floor(step, calls: int = 2, repeats: int = 30) -> tuple[float, float, float]:
+    """The floor of the update ``step``, per call over ``calls`` calls (TD3 steps its actor
+    every second one): its matrix products' GFLOP, the seconds they take replayed alone on
+    contiguous operands (best of ``repeats``), and their GFLOP/s."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    for _ in range(3):
+        step()
+    counter = FlopCounterMode(display=False)
+    with counter:
+        for _ in range(calls):
+            step()
+    gflop = counter.get_total_flops() / 1e9 / calls
+    operands = [
+        (torch.randn(b, m, k, device=DEVICE), torch.randn(b, k, n, device=DEVICE))
+        for b, m, k, n in matmul_shapes(step, calls)
+    ]
+    best = float("inf")
+    for _ in range(repeats):
+        _sync()
+        start = time.perf_counter()
+        for left, right in operands:
+            torch.bmm(left, right) if left.shape[0] > 1 else torch.mm(left[0], right[0])
+        _sync()
+        best = min(best, (time.perf_counter() - start) / calls)
+    return gflop, best, gflop / best
 
 
 def write_paths(algo: str, seconds: float, rounds: int) -> None:
@@ -282,18 +364,23 @@ def write_paths(algo: str, seconds: float, rounds: int) -> None:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="per variant, all rounds")
-    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds per pair")
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds per set")
+    parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--algos", nargs="+", default=["sac", "td3", "ppo"])
     parser.add_argument("--device", default="cpu", help="torch device of networks and data")
+    parser.add_argument("--ppo-minibatch", type=int, default=64, help="PPO's minibatch size")
+    parser.add_argument(
+        "--no-compile", action="store_true", help="leave out the torch.compile rows"
+    )
     parser.add_argument(
         "--write-paths",
         action="store_true",
         help="instead: the agents' direct output writes against TensorDictModule's from_any path",
     )
     args = parser.parse_args(argv)
-    global DEVICE
+    global DEVICE, PPO_MINIBATCH
     DEVICE = torch.device(args.device)
+    PPO_MINIBATCH = args.ppo_minibatch
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     print(f"machine: {describe_machine(DEVICE)}, updates on {DEVICE}")
@@ -302,32 +389,60 @@ def main(argv=None) -> None:
             write_paths(algo, args.seconds, args.rounds)
         return
     print(
-        "| algorithm | TorchRL updates/s | TorchRL, compile_update | plain PyTorch updates/s | "
-        "plain, torch.compile | TorchRL time / plain time | compiled TorchRL / plain | "
-        "compiled TorchRL / compiled plain |"
+        "| algorithm | TorchRL updates/s | TorchRL, fast_update | plain PyTorch updates/s | "
+        "TorchRL time / plain | fast_update time / plain | floor updates/s | "
+        "GFLOP per update | matmul GFLOP/s |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for algo in args.algos:
-        ours, plain, ratio = paired_rates(
-            torchrl_update(algo), PLAIN[algo](), args.seconds, args.rounds
-        )
-        if algo == "ppo":  # compiling ClipPPOLoss did not finish within 10 minutes here
-            print(f"| {algo} | {ours:,.0f} | - | {plain:,.0f} | - | {ratio:.2f}x | - | - |")
-            continue
-        ours_compiled, plain_compiled, compiled_ratio = paired_rates(
-            torchrl_update(algo, compile_update=True),
-            torch.compile(PLAIN[algo]()),
-            args.seconds,
-            args.rounds,
-        )
+        plain = PLAIN[algo]()
+        gflop, seconds, gflops = floor(plain)
+        steps = {
+            "torchrl": torchrl_update(algo),
+            "fast": torchrl_update(algo, fast_update=True),
+            "plain": plain,
+        }
+        rates, ratios = medians(alternating_rates(steps, args.seconds, args.rounds), "plain")
         print(
-            f"| {algo} | {ours:,.0f} | {ours_compiled:,.0f} | {plain:,.0f} | "
-            f"{plain_compiled:,.0f} | {ratio:.2f}x | {plain / ours_compiled:.2f}x | "
-            f"{compiled_ratio:.2f}x |"
+            f"| {algo} | {rates['torchrl']:,.0f} | {rates['fast']:,.0f} | {rates['plain']:,.0f} | "
+            f"{ratios['torchrl']:.2f}x | {ratios['fast']:.2f}x | {1 / seconds:,.0f} | "
+            f"{gflop:.3f} | {gflops:.1f} |"
         )
     print(
-        f"(medians over {args.rounds} alternating rounds; the ratio is the median of the "
-        "per-round ratios; compiled rates exclude the compilation, done during the warm-up)"
+        f"(medians over {args.rounds} alternating rounds; a ratio is the median of the per-round "
+        f"ratios; the floor: the plain update's matrix products alone, at {args.threads} "
+        "thread(s), best of 30)"
+    )
+    if args.no_compile:
+        return
+    print()
+    print(
+        "| algorithm | TorchRL, compile_update | compile_update + fast_update | "
+        "plain, torch.compile | compiled TorchRL time / compiled plain | "
+        "compiled fast_update / compiled plain |"
+    )
+    print("|---|---|---|---|---|---|")
+    for algo in args.algos:
+        # each compiled agent alternates with the compiled plain update alone: two compiled
+        # agents taking turns make dynamo recompile their shared loss code at every turn
+        # (each turn's exit from tensordict's pytree context changes a dict it guards on)
+        plain = torch.compile(PLAIN[algo]())
+        rates, ratios = {}, {}
+        for name, fast in (("torchrl", False), ("fast", True)):
+            steps = {name: torchrl_update(algo, compile_update=True, fast_update=fast)}
+            steps["plain"] = plain
+            pair_rates, pair_ratios = medians(
+                alternating_rates(steps, args.seconds, args.rounds), "plain"
+            )
+            rates.update(pair_rates)
+            ratios.update(pair_ratios)
+        print(
+            f"| {algo} | {rates['torchrl']:,.0f} | {rates['fast']:,.0f} | {rates['plain']:,.0f} | "
+            f"{ratios['torchrl']:.2f}x | {ratios['fast']:.2f}x |"
+        )
+    print(
+        "(compiled rates exclude the compilation, done during the warm-up; the plain rate is "
+        "that of the second pair)"
     )
 
 
