@@ -1,0 +1,34 @@
+"""What the field groups of the training config share: a field with its ``--help`` text, and
+the one-line refusal of a field's value."""
+
+from __future__ import annotations
+
+from dataclasses import field
+from typing import Any
+
+
+def documented(text: str, **kwargs) -> Any:
+    """A config field whose ``text`` is its command-line option's help."""
+    return field(metadata={"doc": text}, **kwargs)
+
+
+def refuse(cfg, name: str, why: str) -> None:
+    """Raise the ``ValueError`` that names ``cfg``'s class, the field ``name``, ``why`` and
+    the value."""
+    raise ValueError(f"{type(cfg).__name__}.{name}: {why} (got {getattr(cfg, name)!r})")
+
+
+def check_ranges(cfg, counts=(), positive=(), unit=(), fraction=(), non_negative=()) -> None:
+    """Refuse, naming the field and its value: ``counts`` below 1, ``positive`` fields not
+    > 0, ``unit`` fields outside (0, 1], ``fraction`` fields outside [0, 1], ``non_negative``
+    ones below 0."""
+    for names, ok, text in (
+        (counts, lambda v: v >= 1, "must be >= 1"),
+        (positive, lambda v: v > 0, "must be > 0"),
+        (unit, lambda v: 0 < v <= 1, "must lie in (0, 1]"),
+        (fraction, lambda v: 0 <= v <= 1, "must lie in [0, 1]"),
+        (non_negative, lambda v: v >= 0, "must be >= 0"),
+    ):
+        for field_name in names:
+            if not ok(getattr(cfg, field_name)):
+                refuse(cfg, field_name, text)

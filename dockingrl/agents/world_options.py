@@ -1,0 +1,90 @@
+"""The world's fields of the training config: the scenario the agent observes, the env's
+sensor mismatch and stress level, the filter's learned noise, the training envs' draws and
+what the policy's observation appends."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from dockingrl.agents.option_fields import check_ranges, documented, refuse
+from dockingrl.env.config import noise_scale_problem
+from dockingrl.env.levels import LEVELS
+from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
+
+
+@dataclass
+class WorldOptions:
+    """The env a run trains in and the observation its policy reads."""
+
+    scenario: str = documented("observation scenario", default="compound")
+    range_noise_scale: float = documented(
+        "env's USBL range noise x this (filter keeps Table 2)", default=1.0
+    )
+    bearing_noise_scale: float = documented(
+        "env's USBL bearing noise x this (filter keeps Table 2)", default=1.0
+    )
+    filter_params: str = documented(
+        "learned Q/R file for the EKF (dockingrl learn-filter)", default=""
+    )
+    following_current_fraction: float = documented(
+        "training envs: probability that a reset draws oc_x from [0, 0.3] only (following "
+        "currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
+        default=0.0,
+    )
+    lateral_current_fraction: float = documented(
+        "training envs: probability that a reset draws |oc_y| from [0.15, 0.3] only (strong "
+        "lateral currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
+        default=0.0,
+    )
+    near_start_fraction: float = documented(
+        "training envs: probability that a reset starts 3-8 m before the station (|y| <= 3 m) "
+        "instead of 25-30 m, to practise the final approach; evaluation keeps Sec. 4.1's starts "
+        "(0: off; not in the paper)",
+        default=0.0,
+    )
+    train_level: str = documented(
+        "stress-ladder level (L0-L5, docs/realism.md) whose realism options the run's world "
+        "takes: its training env and all its evaluations (L0: the paper's task; not in the "
+        "paper)",
+        default="L0",
+    )
+    observe_current: bool = documented(
+        "append the ocean current (DS frame) to the policy's observation (not in the paper)",
+        default=False,
+    )
+    observe_command: bool = documented(
+        "append the command applied at the previous step to the policy's observation, "
+        "after the current's (zeros at an episode's start; not in the paper)",
+        default=False,
+    )
+    action_repeat: int = documented(
+        "hold each action for this many env steps of 0.2 s (1: the paper's; not in the "
+        "paper); total_steps, eval_every, start_steps and updates_per_step still count env "
+        "steps, one transition per action_repeat of them",
+        default=1,
+    )
+
+    def _check_world(self) -> None:
+        """Refuse a world field out of its range, naming it."""
+        if self.scenario not in SCENARIOS:
+            refuse(self, "scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
+        if self.train_level not in LEVELS:
+            refuse(self, "train_level", f"unknown stress level; valid: {', '.join(LEVELS)}")
+        check_ranges(
+            self,
+            counts=("action_repeat",),
+            fraction=(
+                "following_current_fraction",
+                "lateral_current_fraction",
+                "near_start_fraction",
+            ),
+        )
+        for name, sigma in (
+            ("range_noise_scale", "range_noise_fraction"),
+            ("bearing_noise_scale", "bearing_noise"),
+        ):
+            problem = noise_scale_problem(getattr(self, name), sigma)
+            if problem:
+                raise ValueError(f"{type(self).__name__}.{name}: {problem}")
+        if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
+            refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
