@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, get_type_hints
 
 from dockingrl.agents.network_options import MIRROR_SYMMETRIC, NetworkOptions
@@ -110,14 +110,15 @@ def in_order(names: Sequence[str], groups: Sequence[type]) -> type:
     if sorted(names) != sorted(by_name):
         missing, extra = sorted(set(by_name) - set(names)), sorted(set(names) - set(by_name))
         raise TypeError(f"field order: fields not listed {missing}, listed but in no group {extra}")
-    return dataclasses.make_dataclass(
-        "FieldOrder",
-        [
-            (n, by_name[n].type, documented(by_name[n].metadata["doc"], default=by_name[n].default))
-            for n in names
-        ],
-        namespace={"__module__": __name__},
-    )
+    copies = [
+        (
+            f.name,
+            f.type,
+            field(default=f.default, default_factory=f.default_factory, metadata=f.metadata),
+        )
+        for f in (by_name[n] for n in names)
+    ]
+    return dataclasses.make_dataclass("FieldOrder", copies, namespace={"__module__": __name__})
 
 
 @dataclass
