@@ -426,6 +426,7 @@ def main(argv=None) -> None:
         # each compiled agent alternates with the compiled plain update alone: two compiled
         # agents taking turns make dynamo recompile their shared loss code at every turn
         # (each turn's exit from tensordict's pytree context changes a dict it guards on)
+        torch._dynamo.reset()  # drop the graphs of the agents before (memory, recompile limits)
         plain = torch.compile(PLAIN[algo]())
         rates, ratios = {}, {}
         for name, fast in (("torchrl", False), ("fast", True)):
