@@ -144,3 +144,42 @@ def test_a_grid_resumes_after_its_driver_is_killed(tmp_path):
     for trial in (first, second):
         assert (tmp_path / "collect" / trial.name / "summary.json").exists()
         assert (tmp_path / "collect" / trial.name / "policy.pt").exists()
+
+
+def test_a_trial_whose_worker_dies_is_started_again_after_a_pause(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    from dockingrl.grid import driver
+
+    deaths = tmp_path / "deaths"
+    deaths.mkdir()
+
+    def dies_twice(trial, out, threads):  # pickled by value into the Ray worker
+        died = list(deaths.iterdir())
+        if len(died) < 2:
+            (deaths / str(len(died))).touch()
+            os._exit(1)  # the worker process dies, as when the kernel kills it for memory
+        return {"name": trial.name, "status": "finished", "error": ""}
+
+    monkeypatch.setattr(driver, "run_trial", dies_twice)
+    monkeypatch.setattr(driver, "RETRY_PAUSE_S", 0.5)
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    grid = load_grid(write_grid(tmp_path, seeds=(0,)))
+    grid.collect = None
+    started = time.time()
+    states = driver.run_grid(grid, max_concurrent=1, view_every=1)
+    assert states == {"ppo__noise__s0": "finished"}
+    assert len(list(deaths.iterdir())) == 2
+    assert time.time() - started >= 0.5 + 1.0  # the two pauses, 0.5 s then doubled
+
+    deaths_forever = tmp_path / "forever"
+
+    def always_dies(trial, out, threads):
+        deaths_forever.mkdir(exist_ok=True)
+        (deaths_forever / str(len(list(deaths_forever.iterdir())))).touch()
+        os._exit(1)
+
+    monkeypatch.setattr(driver, "run_trial", always_dies)
+    monkeypatch.setattr(driver, "RETRY_PAUSE_S", 0.1)
+    states = driver.run_grid(grid, max_concurrent=1, view_every=1)
+    assert states == {"ppo__noise__s0": "failed"}
+    assert len(list(deaths_forever.iterdir())) == 1 + driver.WORKER_RETRIES

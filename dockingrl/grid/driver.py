@@ -1,5 +1,6 @@
 """The Ray driver of a grid: starts the unfinished trials as Ray tasks, as many at once as the
-CPUs allow, collects the finished ones and stops the running ones on SIGTERM or SIGINT."""
+CPUs allow, collects the finished ones, starts again the ones whose worker died (after a pause
+that lets the machine recover) and stops the running ones on SIGTERM or SIGINT."""
 
 from __future__ import annotations
 
@@ -14,6 +15,12 @@ from dockingrl.grid.files import Grid, Trial
 from dockingrl.grid.folders import collect_trial, finished_summary, lock_pid
 from dockingrl.grid.trial import run_trial
 from dockingrl.grid.view import GridView
+
+#: times a trial is started again after its worker process died (killed for memory, crashed,
+#: its node lost); it resumes from its last checkpoint
+WORKER_RETRIES = 3
+#: seconds without starting any trial after a worker died, doubled at each further death
+RETRY_PAUSE_S = 120.0
 
 
 @dataclass
@@ -77,6 +84,10 @@ def run_grid(
     if address:
         ray.init(address=address, log_to_driver=False, configure_logging=False)
     else:
+        # a local Ray's memory monitor kills Ray's own workers (the trials) when any process of
+        # the machine uses most of its memory; leave such choices to the kernel's OOM killer,
+        # which kills the process that takes the memory
+        os.environ.setdefault("RAY_memory_monitor_refresh_ms", "0")
         ray.init(
             num_cpus=os.cpu_count(),
             include_dashboard=False,
@@ -89,6 +100,8 @@ def run_grid(
     task = ray.remote(num_cpus=grid.threads, max_retries=0, max_calls=1)(run_trial)
     running: dict[Any, _Running] = {}
     ended = 0
+    deaths: dict[str, int] = {}
+    hold_until = 0.0  # no trial starts before this time (a worker died)
     stop = {"signum": None, "stopping": False}
 
     def on_signal(signum, frame):
@@ -100,6 +113,8 @@ def run_grid(
     try:
         while todo or running:
             while not stop["signum"] and todo and len(running) < limit:
+                if time.time() < hold_until:
+                    break
                 if stop_after and ended + len(running) >= stop_after:
                     break
                 left = hours * 3600 - (time.time() - started_at) if hours > 0 else float("inf")
@@ -114,6 +129,9 @@ def run_grid(
                 notes.pop(trial.name, None)
                 view.show(states, running, notes, force=True)
             if not running:
+                if todo and not stop["signum"] and time.time() < hold_until:
+                    time.sleep(min(hold_until - time.time(), 5.0))
+                    continue
                 break
             if stop["signum"] and not stop["stopping"]:
                 stop["stopping"] = True
@@ -131,7 +149,21 @@ def run_grid(
                 try:
                     result = ray.get(ref)
                 except Exception as exc:  # the worker died
-                    result = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+                    error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                    name = r.trial.name
+                    deaths[name] = deaths.get(name, 0) + 1
+                    if deaths[name] <= WORKER_RETRIES and not stop["signum"]:
+                        pause = RETRY_PAUSE_S * 2 ** (sum(deaths.values()) - 1)
+                        hold_until = max(hold_until, time.time() + min(pause, 3600.0))
+                        todo.insert(0, r.trial)
+                        states[name] = "pending"
+                        notes[name] = (
+                            f"worker died ({error[:100]}); again in {pause:.0f} s "
+                            f"({deaths[name]}/{WORKER_RETRIES})"
+                        )
+                        view.show(states, running, notes, force=True)
+                        continue
+                    result = {"status": "failed", "error": error}
                 states[r.trial.name] = result["status"]
                 ended += 1
                 if result["status"] == "finished":
