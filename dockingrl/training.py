@@ -21,6 +21,7 @@ from torchrl.envs.utils import ExplorationType
 
 from dockingrl.agents import Agent, make_agent
 from dockingrl.agents.config import CONFIGS, TrainConfig
+from dockingrl.agents.reward_shaping import RewardShaping
 from dockingrl.agents.saving import pipeline_options, save_policy
 from dockingrl.env import DockingConfig
 from dockingrl.env.levels import level_config
@@ -243,7 +244,7 @@ def training_draws(cfg: TrainConfig, config: DockingConfig) -> DockingConfig:
     return config.replace(**curricula) if curricula else config
 
 
-def training_transforms(cfg: TrainConfig) -> list:
+def training_transforms(cfg: RewardShaping) -> list:
     """What the training env adds to the scenario: ``RewardSum`` (logged episode rewards are
     the paper's eq. 12), then the optional terms the agent learns from: the floor on a miss's
     contact reward, the contact-speed penalty, the success bonus, and the end of an episode

@@ -198,7 +198,8 @@ def test_make_vec_is_the_batched_env_with_the_same_numbers_as_make_env():
         assert reward.dtype == np.float64 and terminated.dtype == truncated.dtype == bool
         td = step_mdp(td)
     # a batch of one gives the single env's numbers
-    single, one = gymnasium.make(ID, scenario="compound", fast=False), DockingVectorEnv(1, "compound")
+    single = gymnasium.make(ID, scenario="compound", fast=False)
+    one = DockingVectorEnv(1, "compound")
     np.testing.assert_array_equal(single.reset(seed=9)[0], one.reset(seed=9)[0][0])
     action = np.float32([0.5, 0.1])
     np.testing.assert_array_equal(single.step(action)[0], one.step(action[None])[0][0])

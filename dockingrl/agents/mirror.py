@@ -9,6 +9,7 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from dockingrl.agents.config import TrainConfig
+from dockingrl.agents.world_options import WorldOptions
 from dockingrl.scenarios import MIRROR_PAIR, mirror_signs
 
 
@@ -85,7 +86,7 @@ def symmetric(net: nn.Module, in_signs: torch.Tensor | None, out_signs) -> nn.Mo
     return MirrorSymmetric(net, in_signs, torch.as_tensor(out_signs, dtype=torch.float32))
 
 
-def config_mirror_signs(cfg: TrainConfig) -> torch.Tensor:
+def config_mirror_signs(cfg: WorldOptions) -> torch.Tensor:
     """:func:`~dockingrl.scenarios.mirror_signs` of the observation ``cfg``'s policy reads."""
     return mirror_signs(
         cfg.scenario, observe_current=cfg.observe_current, observe_command=cfg.observe_command

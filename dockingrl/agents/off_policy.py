@@ -19,6 +19,8 @@ from dockingrl.agents.config import OffPolicyConfig, TrainConfig
 from dockingrl.agents.mirror import config_mirror_signs, mirror_transitions
 from dockingrl.agents.networks import PRIVILEGED_KEYS, make_critic
 from dockingrl.agents.nstep import NStepWindow
+from dockingrl.agents.off_policy_options import OffPolicyOptions
+from dockingrl.agents.run_options import RunOptions
 
 #: what an off-policy replay buffer stores of each transition
 TRANSITION_KEYS = (
@@ -63,7 +65,7 @@ def _key(key) -> tuple:
     return key if isinstance(key, tuple) else (key,)
 
 
-def vmap_ensembles(cfg: TrainConfig) -> bool:
+def vmap_ensembles(cfg: RunOptions) -> bool:
     """Whether the twin critics run through ``torch.vmap`` (one batched matrix product per
     layer, TorchRL's default) rather than one after the other. With ``fast_update`` on a CPU
     they run one after the other: the batched products (``bmm``) of an update took 1.7x the
@@ -71,7 +73,7 @@ def vmap_ensembles(cfg: TrainConfig) -> bool:
     return not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
 
 
-def replay_buffer(cfg: OffPolicyConfig, device) -> TensorDictReplayBuffer:
+def replay_buffer(cfg: OffPolicyOptions, device) -> TensorDictReplayBuffer:
     """A uniformly sampled replay buffer of ``cfg.buffer_size`` transitions on ``device``."""
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(cfg.buffer_size, device=device),

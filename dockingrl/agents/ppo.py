@@ -13,13 +13,14 @@ from dockingrl.agents.base import Agent, adam, scalar
 from dockingrl.agents.config import PPOConfig
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
 from dockingrl.agents.networks import QValueModule, mlp
+from dockingrl.agents.ppo_options import PPOOptions
 
 #: rows of the value network's input per call while estimating advantages with
 #: ``fast_update``: activations that stay in a CPU's cache
 GAE_CHUNK_ROWS = 2048
 
 
-def gae_chunks(cfg: PPOConfig) -> dict:
+def gae_chunks(cfg: PPOOptions) -> dict:
     """``GAE`` options that call the value network on chunks of whole envs, about
     ``GAE_CHUNK_ROWS`` rows each, observations and next observations apart, instead of once
     under ``vmap`` on both stacked: 0.36x the time for the ``ppo`` recipe's 256 x 64 steps on a

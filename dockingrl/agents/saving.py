@@ -13,7 +13,7 @@ from dockingrl.io import (
     ArtifactError,
     first_line,
     read_artifact,
-    read_old_artifact,
+    read_to_upgrade,
     require_keys,
     save_artifact,
 )
@@ -220,12 +220,10 @@ def upgrade_policy(path: str | Path) -> str:
     from dockingrl.transforms.params import FORMAT as FILTER_FORMAT
     from dockingrl.transforms.params import upgrade_payload
 
-    payload = read_old_artifact(path, WHAT)
-    found = payload.get("format")
-    if found == FORMAT:
+    payload = read_to_upgrade(path, WHAT, FORMAT, OLD_FORMATS)
+    if payload is None:
         return f"{path}: already {FORMAT}"
-    if found not in OLD_FORMATS:
-        raise ArtifactError(f"{path}: not a {WHAT}: its format is {found!r}")
+    found = payload["format"]
     payload.setdefault("filter_params", None)
     payload.setdefault("metadata", {})
     _check_payload(path, payload, CONFIGS)
