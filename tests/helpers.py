@@ -59,15 +59,6 @@ TINY = {
         "hidden": (32, 32),
         "updates_per_step": 0.5,
     },
-    "td3": {
-        "total_steps": 400,
-        "num_envs": 4,
-        "start_steps": 100,
-        "frames_per_batch": 100,
-        "batch_size": 32,
-        "hidden": (32, 32),
-        "updates_per_step": 0.5,
-    },
     "ppo": {
         "total_steps": 512,
         "num_envs": 8,
@@ -77,6 +68,7 @@ TINY = {
         "hidden": (32, 32),
     },
 }
+TINY["td3"] = dict(TINY["sac"])
 COMMON = {
     "eval_every": 200,
     "eval_episodes": 3,

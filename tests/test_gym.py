@@ -23,14 +23,6 @@ ID = "dockingrl/Docking-v0"
 SCENARIOS = ("no_noise", "noise", "filtered", "compound")
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def _random_actions(count, seed=0):
     rng = np.random.default_rng(seed)  # beyond the bounds too: both envs clip
     return rng.uniform([-0.6, -0.5], [1.0, 0.5], size=(count, 2)).astype(np.float32)

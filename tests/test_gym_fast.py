@@ -19,14 +19,6 @@ from dockingrl.transforms import ekf
 ID = "dockingrl/Docking-v0"
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def test_paper_step_on_tensors_is_the_batched_envs_step_bit_for_bit():
     n = 64
     env = DockingEnv(n, seed=0)
