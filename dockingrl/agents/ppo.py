@@ -90,10 +90,11 @@ class PPOAgent(Agent):
             data["next"] = data["next"].clone(recurse=False)
             data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
         logs: dict[str, list[float]] = {}
-        for _ in range(cfg.epochs):
-            with torch.no_grad():
-                self.advantage(data)
-            flat = data.reshape(-1).select(*self._minibatch_keys(), strict=False)
+        for epoch in range(cfg.epochs):
+            if epoch == 0 or cfg.advantage_every_epoch:
+                with torch.no_grad():
+                    self.advantage(data)
+                flat = data.reshape(-1).select(*self._minibatch_keys(), strict=False)
             order = torch.randperm(frames, generator=self.extra["generator"])
             for start in range(0, frames, cfg.minibatch_size):
                 batch = flat[order[start : start + cfg.minibatch_size]]

@@ -51,6 +51,12 @@ class PPOOptions:
         "on the value's, zero biases (stable-baselines3's PPO)",
         default=False,
     )
+    advantage_every_epoch: bool = documented(
+        "estimate advantages (GAE) again before every epoch with the current value network "
+        "(TorchRL's examples); false: once per rollout, before the epochs (stable-baselines3, "
+        "CleanRL), a tenth of the value-network passes at 10 epochs",
+        default=True,
+    )
 
     def _check_ppo(self) -> None:
         """Refuse a PPO field out of its range, naming it."""
@@ -68,6 +74,11 @@ class PPOOptions:
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(
                 f"{name}.lr_schedule: valid: {', '.join(LR_SCHEDULES)} (got {self.lr_schedule!r})"
+            )
+        if not isinstance(self.advantage_every_epoch, bool):
+            raise ValueError(
+                f"{name}.advantage_every_epoch: must be true or false "
+                f"(got {self.advantage_every_epoch!r})"
             )
         if self.activation not in ACTIVATIONS:
             raise ValueError(
