@@ -59,6 +59,7 @@ def learn_filter(
     out: str | Path,
     *,
     noise_scale: float = 1.0,
+    level: str = "L0",
     manoeuvre_noise: bool = False,
     context_noise: bool = False,
     range_noise_from: str = "measurement",
@@ -66,13 +67,16 @@ def learn_filter(
     command: str = "",
 ) -> dict:
     """A filter fitted as ``fit`` says on rollouts of the env whose USBL noise is
-    ``noise_scale`` times Table 2's, saved as ``out/filter_params.pt`` and scored with the
-    hand-tuned one on held-out rollouts (``out/eval.json``, returned)."""
+    ``noise_scale`` times Table 2's, in the world of stress level ``level`` (its sensors'
+    rates, delays, dropouts and outliers: the filter updates each entry when its reading
+    arrives), saved as ``out/filter_params.pt`` and scored with the hand-tuned one on held-out
+    rollouts (``out/eval.json``, returned)."""
+    from dockingrl.env.levels import level_config
     from dockingrl.scenarios import make_filter
     from dockingrl.transforms.params import save_filter_params
 
     out = Path(out)
-    config = mismatched_config(noise_scale)
+    config = level_config(level, mismatched_config(noise_scale))
     start = time.perf_counter()
     data = record_rollouts(
         fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=fit.seed
@@ -102,6 +106,7 @@ def learn_filter(
         "command": command,
         "objective": fit.objective,
         "noise_scale": noise_scale,
+        "level": level,
         "range_noise_from": range_noise_from,
         "learn_r": fit.learn_r,
         "loss_first_last": [history[0], history[-1]],

@@ -96,6 +96,28 @@ def test_learned_parameters_round_trip_through_the_cli(tmp_path):
     assert (out / "curves.csv").stat().st_size > 0
 
 
+def test_learn_filter_on_a_stress_level_fits_on_its_asynchronous_sensors(tmp_path, monkeypatch):
+    from dockingrl import filter_experiments
+
+    recorded = []
+    record = filter_experiments.record_rollouts
+    monkeypatch.setattr(
+        filter_experiments,
+        "record_rollouts",
+        lambda *a, **k: recorded.append(k["config"]) or record(*a, **k),
+    )
+    out = tmp_path / "l1"
+    argv = ["learn-filter", "--level", "L1", "--num-envs", "8", "--steps", "60", "--window"]
+    argv += ["20", "--epochs", "1", "--out", str(out), "--logger", "none", "--threads", "1"]
+    assert cli_main(argv) == 0
+    report = json.loads((out / "eval.json").read_text())
+    assert report["level"] == "L1"
+    assert recorded and all(c.usbl_period == 1.0 and c.sensor_timing for c in recorded)
+    assert report["held_out_learned"]["rmse_position_m"] > 0
+    with pytest.raises(SystemExit):
+        cli_main(["learn-filter", "--level", "L9", "--out", str(out)])
+
+
 def by_hand(means, covs, rollouts, skip=10):
     """The state errors, their covariances and the NEES after the first ``skip`` steps of
     every episode, in numpy: ``(error, cov, nees)`` flattened, and ``nees`` per env."""

@@ -20,6 +20,7 @@ from dockingrl.cli.arguments import (
     UsageError,
     integer,
 )
+from dockingrl.env.levels import LEVELS
 from dockingrl.filter_comparison import ppo_filter_comparison
 from dockingrl.filter_experiments import (
     filter_ablation,
@@ -157,6 +158,7 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
         _fit_options(args, args.objective),
         out,
         noise_scale=args.noise_scale,
+        level=args.level,
         log=logger.log,
         **_noise_models(args),
         command=command_line(),
@@ -246,6 +248,13 @@ def add_filter_commands(sub) -> None:
         "the true state under the estimate (simulation only)",
     )
     lf.add_argument("--out", default="runs/filter", help="folder for filter_params.pt, eval.json")
+    lf.add_argument(
+        "--level",
+        choices=list(LEVELS),
+        default="L0",
+        help="stress level whose world the rollouts come from (L1, L4, L5: slow, late, lost "
+        "and outlying fixes; docs/realism.md)",
+    )
     lf.add_argument(
         "--logger", choices=["wandb", "csv", "none"], default="wandb", help="wandb runs offline"
     )
