@@ -21,11 +21,12 @@ def _shorten_episodes(patch: pytest.MonkeyPatch):
     build; returns that world's config."""
     from helpers import SMOKE_EPISODE_STEPS
 
-    from dockingrl import policies, training
+    from dockingrl import policies
     from dockingrl.env import DockingConfig
+    from dockingrl.training import options
 
     short = functools.partial(DockingConfig, max_steps=SMOKE_EPISODE_STEPS)
-    patch.setattr(training, "DockingConfig", short)
+    patch.setattr(options, "DockingConfig", short)
     patch.setattr(policies, "DockingConfig", short)
     return short()
 

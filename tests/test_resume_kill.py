@@ -39,6 +39,7 @@ moment, out, config = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
 import torch
 import torchrl.data
 import dockingrl.training as training
+import dockingrl.training.selection as selection
 from dockingrl.agents.config import make_config
 from dockingrl.env import DockingEnv
 
@@ -69,19 +70,19 @@ elif moment == "update":  # an optimizer step inside an update of the 3rd or 4th
 elif moment == "checkpoint_write":  # the 2nd checkpoint: state written, not yet in place
     wrap(torchrl.data.ReplayBuffer, "dumps", 2, after=True)
 elif moment == "periodic_eval":  # inside the 2nd periodic evaluation
-    original = training.evaluate
+    original = selection.evaluate
     def evaluate(policy, scenario, episodes, **kwargs):
         if episodes == config["eval_episodes"]:
             die_on(2)
         return original(policy, scenario, episodes, **kwargs)
-    training.evaluate = evaluate
+    selection.evaluate = evaluate
 elif moment == "final_eval":  # inside the final evaluation, after policy.pt is written
-    original = training.evaluate
+    original = selection.evaluate
     def evaluate(policy, scenario, episodes, **kwargs):
         if episodes == config["final_eval_episodes"]:
             die_on(1)
         return original(policy, scenario, episodes, **kwargs)
-    training.evaluate = evaluate
+    selection.evaluate = evaluate
 else:
     raise SystemExit(f"unknown moment {moment}")
 cfg = make_config("sac", "paper", out=out, run_name="run", **config)

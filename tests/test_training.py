@@ -89,18 +89,18 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(
     import os
     import signal
 
-    from dockingrl.training import TrainingInterrupted
+    from dockingrl.training import TrainingInterrupted, trainer
 
     cfg = tiny_config("sac", "compound", tmp_path, checkpoint_every=0)
-    original, batches = Trainer._train_on, []
+    original, batches = trainer.learn_on, []
 
-    def train_then_signal(self, data, batch_frames):
+    def train_then_signal(agent, cfg, data, frames, batch_frames):
         batches.append(data.numel())
         if len(batches) == 2:
             os.kill(os.getpid(), signal.SIGTERM)
-        return original(self, data, batch_frames)
+        return original(agent, cfg, data, frames, batch_frames)
 
-    monkeypatch.setattr(Trainer, "_train_on", train_then_signal)
+    monkeypatch.setattr(trainer, "learn_on", train_then_signal)
     before = signal.getsignal(signal.SIGTERM)
     with pytest.raises(TrainingInterrupted, match="SIGTERM at 200 env steps") as stopped:
         train(cfg, progress=False)
@@ -109,7 +109,7 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(
     run = tmp_path / "sac_compound"
     assert json.loads((run / "checkpoints" / "latest.json").read_text())["frames"] == 200
     assert not (run / "policy.pt").exists()
-    monkeypatch.setattr(Trainer, "_train_on", original)
+    monkeypatch.setattr(trainer, "learn_on", original)
     result = train(None, resume=run, progress=False)
     assert result["summary"]["frames"] == cfg.total_steps
     assert (run / "policy.pt").exists()
@@ -431,10 +431,10 @@ def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(
 ):
     """Periodic evaluations score 50, 90, 10 %: the saved policy and the final evaluation use
     the actor of the second one; the checkpoint carries it for a resumed run."""
-    import dockingrl.training as training
     from dockingrl.agents.saving import load_policy
+    from dockingrl.training import selection
 
-    real_evaluate, scores, seen = training.evaluate, iter([50.0, 90.0, 10.0]), []
+    real_evaluate, scores, seen = selection.evaluate, iter([50.0, 90.0, 10.0]), []
 
     def scripted(policy, scenario, num_episodes, **kwargs):
         metrics = real_evaluate(policy, scenario, num_episodes, **kwargs)
@@ -448,7 +448,7 @@ def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(
                 torch.testing.assert_close(final_state[k], v)
         return metrics
 
-    monkeypatch.setattr(training, "evaluate", scripted)
+    monkeypatch.setattr(selection, "evaluate", scripted)
     cfg = tiny_config("ppo", "noise", tmp_path, total_steps=768, eval_every=256, keep_best=True)
     result = train(cfg, progress=False)
     assert seen[-1] == "final" and len(seen) == 4
@@ -470,10 +470,10 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(
     after the second was scored), policy.pt holds it, and the validation seed differs from
     every periodic and final one. A checkpoint of before the candidates (only ``best``)
     still loads."""
-    import dockingrl.training as training
     from dockingrl.agents.saving import load_policy
+    from dockingrl.training import selection
 
-    real_evaluate, periodic, validation = training.evaluate, iter([50.0, 90.0, 70.0]), {}
+    real_evaluate, periodic, validation = selection.evaluate, iter([50.0, 90.0, 70.0]), {}
     actors, seeds = {}, {"periodic": [], "select": [], "final": []}
 
     def scripted(policy, scenario, num_episodes, **kwargs):
@@ -494,7 +494,7 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(
                 torch.testing.assert_close(state[k], v)
         return metrics
 
-    monkeypatch.setattr(training, "evaluate", scripted)
+    monkeypatch.setattr(selection, "evaluate", scripted)
     cfg = tiny_config(
         "ppo",
         "noise",
@@ -536,16 +536,16 @@ def test_keep_candidates_ends_with_the_best_actor_on_validation_episodes(
 def test_runs_with_an_averaged_actor_evaluate_and_save_it(tmp_path, monkeypatch, short_episodes):
     """With ``actor_average`` every evaluation sees the averaged actor (never the live one
     that explores), and policy.pt holds the averaged weights of the last checkpoint."""
-    import dockingrl.training as training
     from dockingrl.agents.saving import load_policy
+    from dockingrl.training import selection
 
-    real_evaluate, seen = training.evaluate, []
+    real_evaluate, seen = selection.evaluate, []
 
     def spy(policy, scenario, num_episodes, **kwargs):
         seen.append(all(not p.requires_grad for p in policy.parameters()))
         return real_evaluate(policy, scenario, num_episodes, **kwargs)
 
-    monkeypatch.setattr(training, "evaluate", spy)
+    monkeypatch.setattr(selection, "evaluate", spy)
     cfg = tiny_config("sac", "compound", tmp_path, actor_average=0.9)
     train(cfg, progress=False)
     assert seen == [True, True, True], "two periodic evaluations and the final one"
@@ -574,11 +574,12 @@ def test_time_budget_stops_training_early_and_says_so(tmp_path, short_episodes):
 def test_train_level_sets_the_whole_world_of_the_run(tmp_path, short_episodes, monkeypatch):
     from dockingrl import training
     from dockingrl.env.levels import LEVELS
+    from dockingrl.training import collection
 
     built = []
-    make_env = training.make_env
+    make_env = collection.make_env
     monkeypatch.setattr(
-        training, "make_env", lambda *a, **k: built.append(k["config"]) or make_env(*a, **k)
+        collection, "make_env", lambda *a, **k: built.append(k["config"]) or make_env(*a, **k)
     )
     cfg = tiny_config("sac", "compound", tmp_path, train_level="L5")
     world = training.env_kwargs(cfg)["config"]

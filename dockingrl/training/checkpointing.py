@@ -1,0 +1,100 @@
+"""A run's checkpoints: atomic folders under ``checkpoints/``, ``latest.json`` naming the
+newest, and the restore of a resumed run."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import torch
+
+from dockingrl.io import write_json
+from dockingrl.training.logger import drop_curves_after
+
+
+class Checkpoints:
+    """The checkpoints of a :class:`~dockingrl.training.Trainer`: what it has trained
+    (``agent``, its replay buffer, the counters, the RNG and the kept candidates), written
+    every ``checkpoint_every`` env steps and restored on resume."""
+
+    @property
+    def checkpoint_root(self) -> Path:
+        return self.run_dir / "checkpoints"
+
+    def save_checkpoint(self) -> Path:
+        """Write a complete checkpoint folder (:mod:`dockingrl.checkpoint`), then point
+        ``latest.json`` at it (one atomic rename), then drop older ones: a crash at any point
+        leaves a usable checkpoint."""
+        from dockingrl.checkpoint import write_state
+
+        path = self.checkpoint_root / f"step_{self.frames:010d}"
+        tmp = path.with_name(path.name + ".tmp")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        if self.agent.replay_buffer is not None and len(self.agent.replay_buffer):
+            self.agent.replay_buffer.dumps(tmp / "replay")
+        state = {
+            "agent": self.agent.state_dict(),
+            "frames": self.frames,
+            "episodes": self.episodes,
+            "elapsed": self.elapsed,
+            "next_eval": self.next_eval,
+            "next_checkpoint": self.next_checkpoint,
+            "torch_rng": torch.get_rng_state(),
+            "best": self.best,
+            "candidates": self.candidates,
+        }
+        write_state(tmp, state)
+        shutil.rmtree(path, ignore_errors=True)
+        tmp.rename(path)
+        write_json(self.checkpoint_root / "latest.json", {"path": path.name, "frames": self.frames})
+        for old in self.checkpoint_root.glob("step_*"):
+            if old != path:
+                shutil.rmtree(old, ignore_errors=True)
+        return path
+
+    def load_checkpoint(self) -> bool:
+        """Restore the checkpoint ``latest.json`` names; ``False`` where the run has none.
+        Raises :class:`~dockingrl.io.ArtifactError` for a damaged, crafted or older one, or
+        one that does not fit this run's agent."""
+        from dockingrl.checkpoint import latest_checkpoint, read_state
+        from dockingrl.io import ArtifactError, first_line
+
+        path = latest_checkpoint(self.checkpoint_root)
+        if path is None:
+            return False
+        state = read_state(path)
+        if state["replay"] is not None and self.agent.replay_buffer is None:
+            raise ArtifactError(
+                f"{path / 'state.pt'}: holds a replay buffer this run's agent lacks"
+            )
+        try:
+            self.agent.load_state_dict(state["agent"])
+            if state["replay"] is not None:
+                self.agent.replay_buffer.loads(path / "replay")
+            torch.set_rng_state(state["torch_rng"])
+        except (KeyError, IndexError, RuntimeError, TypeError, ValueError) as exc:
+            raise ArtifactError(
+                f"{path / 'state.pt'}: does not fit this run ({first_line(exc)})"
+            ) from None
+        self.frames, self.episodes, self.elapsed = (
+            state["frames"],
+            state["episodes"],
+            state["elapsed"],
+        )
+        self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
+        best = state.get("best")
+        self.candidates = state.get("candidates", [best] if best is not None else [])
+        del self.candidates[self.cfg.keep_candidates :]
+        return True
+
+    def checkpoint_due(self) -> bool:
+        """Whether the run has reached its next checkpoint (then the one after is set)."""
+        due = self.next_checkpoint is not None and self.frames >= self.next_checkpoint
+        while due and self.next_checkpoint <= self.frames:
+            self.next_checkpoint += self.cfg.checkpoint_every
+        return due
+
+    def _drop_curves_after(self, frames: int) -> None:
+        """:func:`~dockingrl.training.logger.drop_curves_after` of this run."""
+        drop_curves_after(self.run_dir, frames, self.cfg.total_steps)

@@ -1,0 +1,82 @@
+"""What a run collects with: the env it describes its agent from, the training env, and
+TorchRL's ``Collector`` over it."""
+
+from __future__ import annotations
+
+from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType
+
+from dockingrl.agents.config import TrainConfig
+from dockingrl.evaluation import base_env
+from dockingrl.scenarios import check_mirror_symmetric, make_env
+from dockingrl.training.options import training_draws, training_transforms
+
+
+def env_shapes(cfg: TrainConfig, env_kwargs: dict) -> tuple:
+    """``(obs_dim, action_spec, max_dist)`` of the run's scenario, from a one-env probe; with
+    ``mirror_augment`` it checks that the scenario's observation mirrors."""
+    probe = make_env(cfg.scenario, 1, seed=0, **env_kwargs)
+    if getattr(cfg, "mirror_augment", False):
+        check_mirror_symmetric(probe)
+    sim = base_env(probe)
+    return (
+        probe.observation_spec["observation"].shape[-1],
+        probe.action_spec[0].clone(),
+        sim.config.max_dist,
+    )
+
+
+def training_env(cfg: TrainConfig, env_kwargs: dict, frames: int):
+    """The batched training env of a run that has trained ``frames`` env steps: the run's
+    world with its training draws and training transforms."""
+    kwargs = dict(env_kwargs)
+    kwargs["config"] = training_draws(cfg, kwargs["config"])
+    return make_env(
+        cfg.scenario,
+        cfg.num_envs,
+        seed=cfg.seed * 1_000_003 + frames,
+        device=cfg.device,
+        compile=cfg.compile,
+        transforms=training_transforms(cfg),
+        **kwargs,
+    )
+
+
+def make_collector(cfg: TrainConfig, env, policy, frames: int) -> Collector:
+    """The collector of the rest of a run that has trained ``frames`` env steps: PPO's
+    batches of ``steps_per_env`` per env; SAC's and TD3's of ``frames_per_batch``, random
+    actions until ``start_steps``."""
+    # the collector counts transitions: one per action_repeat env steps
+    repeat = cfg.action_repeat
+    if cfg.algo == "ppo":
+        frames_per_batch = cfg.num_envs * cfg.steps_per_env
+        random_frames = 0
+    else:
+        frames_per_batch = max(
+            cfg.num_envs, cfg.frames_per_batch // repeat // cfg.num_envs * cfg.num_envs
+        )
+        random_frames = -(-max(0, cfg.start_steps - frames) // repeat)
+        random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
+    remaining = -(-(cfg.total_steps - frames) // repeat)
+    return Collector(
+        env,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=-(-remaining // frames_per_batch) * frames_per_batch,
+        init_random_frames=random_frames,
+        exploration_type=ExplorationType.RANDOM,
+        device=cfg.device,
+        auto_register_policy_transforms=False,
+    )
+
+
+def episode_metrics(data) -> tuple[int, dict[str, float]]:
+    """The episodes that ended in a collected batch: their number, and the mean episode
+    reward and success rate (%) of those, where any ended."""
+    done = data["next", "done"].squeeze(-1)
+    if not bool(done.any()):
+        return 0, {}
+    return int(done.sum()), {
+        "train/episode_reward": float(data["next", "episode_reward"][done].mean()),
+        "train/success_rate": 100.0 * float(data["next", "success"][done].float().mean()),
+    }

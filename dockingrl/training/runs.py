@@ -1,0 +1,124 @@
+"""The entry point of a run: :func:`train` starts one or resumes one from its checkpoint,
+with the few settings a resumed run may change."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import fields
+from pathlib import Path
+
+from dockingrl.agents.config import CONFIGS, TrainConfig
+from dockingrl.io import write_json
+from dockingrl.training.logger import RunLogger
+from dockingrl.training.run_folder import RunLock, default_run_name
+from dockingrl.training.stopping import TrainingInterrupted
+from dockingrl.training.trainer import Trainer
+
+#: what a resumed run may change: where and how fast it runs, not what it learns, how long it
+#: goes on (``total_steps``: a finished run can be continued to a larger total), and how it
+#: chooses the actor it ends with (``keep_candidates``, ``select_episodes``)
+RESUME_OVERRIDES = ("threads", "device", "total_steps", "keep_candidates", "select_episodes")
+#: the overrides that config.json records (the others change how, not what, the run computes)
+_RECORDED_OVERRIDES = ("total_steps", "keep_candidates", "select_episodes")
+
+
+def train(
+    cfg: TrainConfig | None,
+    *,
+    resume: str | Path | None = None,
+    progress: bool = True,
+    command: str = "",
+    overrides: dict | None = None,
+) -> dict:
+    """Train ``cfg.algo`` on ``cfg.scenario``; returns ``{"summary", "eval", "run_dir"}``.
+
+    The run folder (``cfg.out / run_name``) receives ``config.json``, ``curves.csv``, the logger's
+    files, ``checkpoints/`` (every ``checkpoint_every`` steps, atomic), and at the end
+    ``policy.pt`` (for ``dockingrl eval --policy``), ``eval.json`` (the final evaluation),
+    ``summary.json`` and ``learning_curve.png``.
+
+    Args:
+        resume: a run folder whose latest checkpoint to continue from, to the same
+            ``total_steps`` (its ``config.json`` is used; ``cfg`` is ignored).
+        overrides: with ``resume``, new values of :data:`RESUME_OVERRIDES` (threads, device,
+            total_steps, keep_candidates, select_episodes). A new ``total_steps`` continues the
+            run, finished or not, to that total (not below its checkpoint). With ``keep_best``
+            the final policy is chosen among the best periodic actors of the whole run; a new
+            ``keep_candidates`` keeps that many from the checkpoint's on (a checkpoint holds
+            only those it was asked to keep). ``config.json`` records these three. PPO's
+            linear learning-rate schedule is tied to the total, so that run's total cannot
+            change.
+    """
+    if resume is not None:
+        run_dir = Path(resume)
+        if not (run_dir / "config.json").exists():
+            raise FileNotFoundError(f"{run_dir} holds no run (no config.json) to resume")
+        saved = json.loads((run_dir / "config.json").read_text())
+        cls = CONFIGS[saved["algo"]]
+        names = {f.name for f in fields(cls)}
+        saved = {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items() if k in names}
+        overrides = dict(overrides or {})
+        if overrides.get("algo") == saved["algo"]:
+            del overrides["algo"]
+        changed = sorted(set(overrides) - set(RESUME_OVERRIDES))
+        if changed:
+            raise ValueError(
+                f"a resumed run keeps its config; only {', '.join(RESUME_OVERRIDES)} may change, "
+                f"not {', '.join(changed)}"
+            )
+        for name in _RECORDED_OVERRIDES:
+            if name in overrides and overrides[name] == saved.get(name):
+                del overrides[name]
+        if "total_steps" in overrides and saved.get("lr_schedule", "constant") != "constant":
+            raise ValueError(
+                f"the run's lr_schedule {saved['lr_schedule']!r} anneals to its total_steps "
+                f"({saved['total_steps']}), which therefore cannot change"
+            )
+        cfg = cls(**{**saved, **overrides})
+        cfg.validate()
+    elif overrides:
+        raise ValueError("overrides apply to a resumed run only; set them in cfg")
+    else:
+        cfg.validate()
+        run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
+        run_dir.mkdir(parents=True, exist_ok=True)
+    with RunLock(run_dir):
+        if resume is None:
+            if (run_dir / "config.json").exists():
+                raise FileExistsError(f"{run_dir} already holds a run: pass --resume {run_dir}")
+            write_json(run_dir / "config.json", cfg.to_dict())
+        return _train_locked(cfg, run_dir, resume, progress, command, overrides or {})
+
+
+def _train_locked(cfg, run_dir, resume, progress, command, overrides) -> dict:
+    trainer = Trainer(cfg, run_dir, progress=progress, command=command)
+    if resume is not None:
+        # a run that stopped before its first checkpoint starts again from its config
+        if trainer.load_checkpoint() and "total_steps" in overrides:
+            # the last batch may overshoot the total: only a new total below it is refused
+            if cfg.total_steps < trainer.frames:
+                raise ValueError(
+                    f"total_steps {cfg.total_steps} is below the checkpoint's {trainer.frames} "
+                    "env steps"
+                )
+        if set(overrides) & set(_RECORDED_OVERRIDES):
+            write_json(run_dir / "config.json", cfg.to_dict())
+        trainer._drop_curves_after(trainer.frames)
+    logger = RunLogger(
+        cfg.to_dict(),
+        cfg.logger,
+        run_dir,
+        trainer.run_id,
+        cfg.wandb_online,
+        buffered=cfg.checkpoint_every > 0,
+    )
+    logger.sync()
+    if trainer.frames < cfg.total_steps and not trainer.out_of_time:
+        try:
+            trainer.run(logger)
+        except TrainingInterrupted:
+            logger.finish({"interrupted_at_frames": trainer.frames})
+            raise
+    result = trainer.finish(logger)
+    result["run_dir"] = str(run_dir)
+    return result

@@ -1,0 +1,175 @@
+"""The training loop shared by SAC, TD3 and PPO: collect a batch, update on it, evaluate,
+log and checkpoint, until the run's ``total_steps`` or time budget."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+
+from dockingrl.agents import Agent, make_agent
+from dockingrl.agents.config import TrainConfig
+from dockingrl.agents.saving import save_policy
+from dockingrl.evaluation import describe_machine
+from dockingrl.io import write_json
+from dockingrl.training.checkpointing import Checkpoints
+from dockingrl.training.collection import (
+    env_shapes,
+    episode_metrics,
+    make_collector,
+    training_env,
+)
+from dockingrl.training.logger import RunLogger, plot_run
+from dockingrl.training.options import env_kwargs
+from dockingrl.training.run_folder import code_version
+from dockingrl.training.selection import Selection
+from dockingrl.training.stopping import StopRequests, TrainingInterrupted
+from dockingrl.training.updates import learn_on
+
+
+class Trainer(Checkpoints, Selection):
+    """Trains one agent on one scenario; see :func:`~dockingrl.training.train`. Its
+    checkpoints are :class:`Checkpoints`', its evaluations :class:`Selection`'s."""
+
+    def __init__(
+        self, cfg: TrainConfig, run_dir: Path, *, progress: bool = True, command: str = ""
+    ) -> None:
+        self.cfg, self.run_dir, self.progress, self.command = cfg, run_dir, progress, command
+        torch.set_num_threads(cfg.threads)
+        self.frames = 0
+        self.episodes = 0
+        self.elapsed = 0.0
+        self.next_eval = cfg.eval_every
+        self.next_checkpoint = cfg.checkpoint_every or None
+        self.last_success = float("nan")
+        self.candidates: list[dict] = []
+        self.run_id = run_dir.name.replace("__", "-")[-60:]
+        self.env_kwargs = env_kwargs(cfg)
+        self.obs_dim, self.action_spec, self.max_dist = env_shapes(cfg, self.env_kwargs)
+        torch.manual_seed(cfg.seed)
+        self.agent: Agent = make_agent(
+            cfg, self.obs_dim, self.action_spec, self.max_dist, cfg.device
+        )
+
+    @property
+    def out_of_time(self) -> bool:
+        """Whether ``time_budget_s`` (if any) is spent."""
+        return 0 < self.cfg.time_budget_s <= self.elapsed
+
+    def run(self, logger: RunLogger) -> None:
+        """Train from ``frames`` to ``total_steps`` (or the time budget), logging each batch;
+        a stop request ends it after a checkpoint with :class:`TrainingInterrupted`."""
+        cfg = self.cfg
+        env = training_env(cfg, self.env_kwargs, self.frames)
+        collector = make_collector(cfg, env, self.agent.exploration_policy, self.frames)
+        bar = None
+        if self.progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(
+                total=cfg.total_steps,
+                initial=self.frames,
+                unit="step",
+                desc=cfg.algo,
+                dynamic_ncols=True,
+            )
+        started = time.perf_counter() - self.elapsed
+        stops = StopRequests()
+        try:
+            stops.install()
+            for data in collector:
+                if self.frames >= cfg.total_steps:
+                    break
+                # env steps: action_repeat per transition (fewer where an episode ended
+                # during the repeat; counted in full, as the batch stepped them)
+                batch_frames = data.numel() * cfg.action_repeat
+                self.frames += batch_frames
+                metrics = learn_on(self.agent, cfg, data, self.frames, batch_frames)
+                ended, ended_metrics = episode_metrics(data)
+                self.episodes += ended
+                metrics.update(ended_metrics)
+                self.elapsed = time.perf_counter() - started
+                metrics.update(
+                    {
+                        "train/episodes": self.episodes,
+                        "time/elapsed_s": self.elapsed,
+                        "time/steps_per_s": self.frames / max(self.elapsed, 1e-9),
+                        "time/updates": self.agent.updates,
+                    }
+                )
+                if self.frames >= self.next_eval:
+                    metrics.update(self.periodic_eval())
+                    while self.next_eval <= self.frames:
+                        self.next_eval += cfg.eval_every
+                logger.log(metrics, self.frames)
+                if bar is not None:
+                    bar.update(batch_frames)
+                    bar.set_postfix(
+                        sps=f"{metrics['time/steps_per_s']:.0f}",
+                        success=f"{self.last_success:.0f}%",
+                    )
+                due = self.checkpoint_due()
+                stopping = stops.signum is not None and self.frames < cfg.total_steps
+                if due or stopping:
+                    self.save_checkpoint()
+                    logger.flush()
+                if stopping:
+                    raise TrainingInterrupted(stops.signum, self.frames, self.run_dir)
+                if self.out_of_time:
+                    break
+        finally:
+            stops.restore()
+            collector.shutdown()
+            if bar is not None:
+                bar.close()
+
+    def finish(self, logger: RunLogger) -> dict:
+        """End the run: the kept actor chosen (``keep_best``), ``policy.pt``, the final
+        evaluation (``eval.json``), ``summary.json`` and the learning curve; returns
+        ``{"summary", "eval"}``."""
+        cfg = self.cfg
+        chosen = {}
+        if cfg.keep_best and self.candidates:
+            chosen = self._select_candidate()
+        save_policy(
+            self.run_dir / "policy.pt",
+            self.agent.policy,
+            cfg,
+            self.obs_dim,
+            self.action_spec,
+            self.max_dist,
+            filter_params=self.env_kwargs.get("filter_params"),
+            frames=self.frames,
+            **chosen,
+        )
+        start = time.perf_counter()
+        final = self._evaluate(cfg.final_eval_episodes, cfg.seed + 10_000, progress=self.progress)
+        final.update(algo=cfg.algo, policy=str(self.run_dir / "policy.pt"), command=self.command)
+        write_json(self.run_dir / "eval.json", final)
+        summary = {
+            "algo": cfg.algo,
+            "scenario": cfg.scenario,
+            "frames": self.frames,
+            "num_envs": cfg.num_envs,
+            "updates": self.agent.updates,
+            "train_wall_clock_s": self.elapsed,
+            "stopped_by_time_budget": self.frames < cfg.total_steps and self.out_of_time,
+            "final_eval_wall_clock_s": time.perf_counter() - start,
+            "success_rate": final["success_rate"],
+            **chosen,
+            "machine": describe_machine(cfg.device),
+            "command": self.command,
+            "code": code_version(),
+        }
+        write_json(self.run_dir / "summary.json", summary)
+        logger.log(
+            {
+                "eval/final_success_rate": final["success_rate"],
+                "eval/final_total_reward": final["total_reward"]["mean"],
+            },
+            self.frames,
+        )
+        plot_run(self.run_dir)
+        logger.finish(summary)
+        return {"summary": summary, "eval": final}
