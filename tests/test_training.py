@@ -403,6 +403,24 @@ def test_ppo_trains_with_reward_scale_and_contact_speed_penalty(tmp_path, short_
     assert saved["contact_speed_penalty"] == 2000.0 and saved["reward_scale"] == 0.1
 
 
+@pytest.mark.parametrize("every_epoch", [True, False])
+def test_ppo_estimates_advantages_every_epoch_or_once_per_rollout(
+    every_epoch, tmp_path, monkeypatch, short_episodes
+):
+    from torchrl.objectives.value import GAE
+
+    calls = []
+    forward = GAE.forward
+    monkeypatch.setattr(
+        GAE, "forward", lambda self, *a, **k: calls.append(1) or forward(self, *a, **k)
+    )
+    cfg = tiny_config("ppo", "noise", tmp_path, advantage_every_epoch=every_epoch)
+    result = train(cfg, progress=False)
+    rollouts = cfg.total_steps // (cfg.num_envs * cfg.steps_per_env)
+    assert result["summary"]["frames"] == cfg.total_steps and rollouts >= 2 and cfg.epochs >= 2
+    assert len(calls) == rollouts * (cfg.epochs if every_epoch else 1)
+
+
 def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
     """``lr_schedule="linear"`` sets Adam's rate to ``lr (1 - progress)`` before each update;
     ``constant`` keeps ``lr``; an unknown schedule is refused."""
