@@ -47,7 +47,7 @@ SAVED_ORDER = {
     + (
         "lr lr_schedule steps_per_env minibatch_size epochs gamma gae_lambda clip "
         "normalize_advantage entropy_coef value_coef max_grad_norm reward_scale activation "
-        "state_independent_scale orthogonal_init"
+        "state_independent_scale orthogonal_init advantage_every_epoch"
     ).split(),
 }
 GROUPS = {
