@@ -1,7 +1,8 @@
 """The package's shape (issue #31): every import of a ``dockingrl`` module, at module or
 function level, goes to its own layer or a lower one (the table of docs/architecture.md); no
 two modules import each other, directly or round a circle; the CLI's subcommand modules share
-only its argument types; and no module grows past 400 lines but those still to split."""
+only its argument types; no module grows past 400 lines but those still to split; and no
+block of code of 6 lines or more stands in two places."""
 
 import ast
 from pathlib import Path
@@ -186,3 +187,64 @@ def test_modules_over_400_lines_are_the_ones_still_to_split():
     }
     assert long - STILL_TO_SPLIT == set(), "over 400 lines: split them"
     assert STILL_TO_SPLIT - long == set(), "now short: take them off STILL_TO_SPLIT"
+
+
+#: the least number of lines a repeated block spans to count as duplicated code
+MIN_REPEATED_LINES = 6
+
+
+def _statement_blocks(path: Path):
+    """``(block, line)`` for every run of consecutive statements of one body in ``path`` that
+    spans at least ``MIN_REPEATED_LINES`` lines (the shortest such run from each statement),
+    each statement as ``ast.unparse`` writes it: formatting, comments and docstrings aside;
+    import statements left out (two modules may import the same names)."""
+    tree = ast.parse(path.read_text(), str(path))
+    seen_bodies = set()
+    for node in ast.walk(tree):
+        for body in (getattr(node, name, None) for name in ("body", "orelse", "finalbody")):
+            if not isinstance(body, list) or not body or id(body) in seen_bodies:
+                continue
+            if not isinstance(body[0], ast.stmt):
+                continue
+            seen_bodies.add(id(body))
+            stmts = [
+                s
+                for s in body
+                if not isinstance(s, (ast.Import, ast.ImportFrom))
+                and not (isinstance(s, ast.Expr) and isinstance(s.value, ast.Constant))
+            ]
+            for i, first in enumerate(stmts):
+                for j in range(i, len(stmts)):
+                    if stmts[j].end_lineno - first.lineno + 1 >= MIN_REPEATED_LINES:
+                        yield tuple(ast.unparse(s) for s in stmts[i : j + 1]), first.lineno
+                        break
+
+
+def repeated_blocks(paths) -> list[list[str]]:
+    """The places (``file:line``) of each block of code that stands in two places or more."""
+    places: dict[tuple, list[str]] = {}
+    for path in paths:
+        for block, line in _statement_blocks(path):
+            places.setdefault(block, []).append(f"{path}:{line}")
+    return [where for where in places.values() if len(where) > 1]
+
+
+def test_no_block_of_code_is_repeated():
+    assert repeated_blocks(sorted(PACKAGE.rglob("*.py"))) == []
+
+
+def test_the_repeated_block_check_finds_a_copied_block_whatever_its_formatting(tmp_path):
+    block = (
+        "x = load(path)\nif x is None:\n    raise ValueError(path)\ny = x + 1\nz = y * 2\n"
+        "w = z - x\n"
+    )
+    (tmp_path / "a.py").write_text(f"def f(path):\n    # one\n{_indent(block)}    return w\n")
+    (tmp_path / "b.py").write_text(
+        "def g(path):\n    '''Doc.'''\n" + _indent(block.replace(" + ", "+")) + "    return 0\n"
+    )
+    found = repeated_blocks([tmp_path / "a.py", tmp_path / "b.py"])
+    assert found == [[f"{tmp_path / 'a.py'}:3", f"{tmp_path / 'b.py'}:3"]]
+
+
+def _indent(text: str) -> str:
+    return "".join(f"    {line}\n" for line in text.splitlines())
