@@ -21,6 +21,8 @@ from dockingrl.grid.view import GridView
 WORKER_RETRIES = 3
 #: seconds without starting any trial after a worker died, doubled at each further death
 RETRY_PAUSE_S = 120.0
+#: the longest such pause
+MAX_RETRY_PAUSE_S = 3600.0
 
 
 @dataclass
@@ -154,7 +156,8 @@ def run_grid(
                     deaths[name] = deaths.get(name, 0) + 1
                     if deaths[name] <= WORKER_RETRIES and not stop["signum"]:
                         pause = RETRY_PAUSE_S * 2 ** (sum(deaths.values()) - 1)
-                        hold_until = max(hold_until, time.time() + min(pause, 3600.0))
+                        pause = min(pause, MAX_RETRY_PAUSE_S)
+                        hold_until = max(hold_until, time.time() + pause)
                         todo.insert(0, r.trial)
                         states[name] = "pending"
                         notes[name] = (
