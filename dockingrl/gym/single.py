@@ -102,7 +102,7 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
     return spaces.Box(np.concatenate(lows), np.concatenate(highs), dtype=np.float32)
 
 
-def _fast_filter_problem(ekf: EKFTransform, env) -> str | None:
+def _fast_filter_problem(ekf: EKFTransform, config: DockingConfig) -> str | None:
     """Why the fast path cannot run ``ekf`` (``None``: it can): it filters with the paper's
     EKF only, on the env's action bounds."""
     if ekf.process_noise.manoeuvre or ekf.context_noise or ekf.gate is not None:
@@ -110,7 +110,6 @@ def _fast_filter_problem(ekf: EKFTransform, env) -> str | None:
             "fast=True filters with a constant Q, a diagonal R and no gate (the paper's "
             "EKF); this filter has manoeuvre noise, context noise or a gate: use fast=False"
         )
-    config = env.base_env.config if hasattr(env, "base_env") else env.config
     bounds = ekf.action_bounds
     env_bounds = torch.tensor([config.action_low, config.action_high])
     if bounds is not None and bounds.tolist() != env_bounds.tolist():
@@ -167,7 +166,8 @@ class DockingScenarioEnv(DockingGymEnv):
         pipeline = scenario_pipeline(scenario, 1, **options)
         ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
         if fast is None:
-            fast = not compile and (ekf is None or _fast_filter_problem(ekf, pipeline) is None)
+            config = pipeline.base_env.config
+            fast = not compile and (ekf is None or _fast_filter_problem(ekf, config) is None)
         super().__init__(simulator=pipeline.base_env, compile=compile, fast=fast)
         self.scenario = scenario
         self.render_mode = render_mode
@@ -203,7 +203,7 @@ class DockingScenarioEnv(DockingGymEnv):
     def _float_filter_constants(self) -> None:
         """The filter's ``Q``, Table 2's sigmas and ``R``'s floor as floats, for the fast path."""
         ekf = self._ekf
-        problem = _fast_filter_problem(ekf, self)
+        problem = _fast_filter_problem(ekf, self.config)
         if problem is not None:
             raise ValueError(problem)
         with torch.no_grad():
