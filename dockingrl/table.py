@@ -171,6 +171,8 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
                 verdict = "fails: compound lower"
             else:
                 verdict = "not resolved: the interval contains 0"
+            paper_c = PAPER_RESULTS.get((compound["algo"], "compound"))
+            paper_o = PAPER_RESULTS.get((compound["algo"], other))
             out.append(
                 {
                     "claim": f"compound >= {other}",
@@ -178,6 +180,9 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
                     "difference_points": diff,
                     "ci95": ci,
                     "verdict": verdict,
+                    "paper_difference_points": None
+                    if paper_c is None or paper_o is None
+                    else paper_c[0] - paper_o[0],
                 }
             )
     for recipe in sorted({r for r, _ in cells}):
@@ -210,14 +215,70 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
     return out
 
 
+def _read_baseline(path: Path) -> dict:
+    """An evaluation's ``eval.json`` with its time to dock (``time_s``: n, mean, std)."""
+    try:
+        base = json.loads(path.read_text())
+        time = base["time_s"]
+        if not all(isinstance(time[k], (int, float)) for k in ("n", "mean", "std")):
+            raise TypeError("time_s n, mean and std must be numbers")
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"baseline {path}: not an evaluation's eval.json with time_s ({e})") from None
+    return base
+
+
+def faster_than_baseline(cells: dict[tuple[str, str], dict], baseline: dict) -> list[dict]:
+    """The paper's claim that learned policies dock faster than the managed surge controller
+    (Table 7): per recipe, the mean time to dock of its ``noise`` and ``compound`` cells (pooled
+    over seeds' docked episodes) against ``baseline``'s (an ``eval.json`` of the controller),
+    with the p-value of Welch's t-test over the episodes (:func:`scipy.stats.ttest_ind_from_stats`)."""
+    from scipy.stats import ttest_ind_from_stats
+
+    base = baseline["time_s"]
+    out = []
+    for (recipe, scenario), c in sorted(cells.items()):
+        t = c["time_docked_s"]
+        if scenario not in ("noise", "compound") or t["n"] < 2 or base["n"] < 2:
+            continue
+        p = float(
+            ttest_ind_from_stats(
+                t["mean"], t["std"], t["n"], base["mean"], base["std"], base["n"], equal_var=False
+            ).pvalue
+        )
+        diff = t["mean"] - base["mean"]
+        if p >= 0.05:
+            verdict = "not resolved: p >= 0.05"
+        else:
+            verdict = "holds: faster" if diff < 0 else "fails: slower"
+        out.append(
+            {
+                "claim": f"docks faster than the managed surge controller ({scenario})",
+                "recipe": recipe,
+                "difference_s": diff,
+                "time_s": t["mean"],
+                "baseline_time_s": base["mean"],
+                "p_value": p,
+                "verdict": verdict,
+            }
+        )
+    return out
+
+
 def write_table(
-    run_dirs, out: str | Path, *, prune_policies: bool = False, command: str = "dockingrl table"
+    run_dirs,
+    out: str | Path,
+    *,
+    prune_policies: bool = False,
+    command: str = "dockingrl table",
+    baseline: str | Path | None = None,
 ) -> dict:
     """Read the finished runs among ``run_dirs``, write ``table.json``, ``table.md`` and one
     learning-curve figure per recipe (``figures_<recipe>.png``) into ``out``; returns the
     table. With ``prune_policies``, ``policy.pt`` is deleted from every run folder but the
-    best seed's of each cell."""
+    best seed's of each cell. ``baseline``: the managed surge controller's ``eval.json``, whose
+    time to dock the learned policies' is tested against."""
     out = Path(out)
+    base = None if baseline is None else _read_baseline(Path(baseline))
     runs = [r for r in (_read(Path(d)) for d in run_dirs) if r is not None]
     if not runs:
         raise ValueError("no finished run (config.json, summary.json and eval.json) given")
@@ -231,7 +292,7 @@ def write_table(
     )
     table = {
         "cells": [cells[k] for k in order],
-        "claims": claims(cells),
+        "claims": claims(cells) + (faster_than_baseline(cells, base) if base else []),
         "statistics": "success_ci95_over_seeds: percentile bootstrap of the mean over seeds "
         f"(scipy.stats.bootstrap, {_RESAMPLES} resamples); success_ci95_over_episodes: Wilson "
         "interval over all the cell's final-evaluation episodes; time over docked episodes, "
@@ -290,18 +351,26 @@ def markdown(table: dict) -> str:
         "",
         table["statistics"] + ".",
         "",
-        "| claim | recipe | difference (points) | 95 % CI | verdict |",
-        "|---|---|---|---|---|",
+        "| claim | recipe | difference | 95 % CI | the paper's difference | verdict |",
+        "|---|---|---|---|---|---|",
     ]
     for c in table["claims"]:
         if "difference_points" in c:
+            paper = c.get("paper_difference_points")
             lines.append(
-                f"| {c['claim']} | {c['recipe']} | {c['difference_points']:+.1f} | "
-                f"{_fmt_ci(c['ci95'])} | {c['verdict']} |"
+                f"| {c['claim']} | {c['recipe']} | {c['difference_points']:+.1f} points | "
+                f"{_fmt_ci(c['ci95'])} | {'-' if paper is None else f'{paper:+.1f} points'} | "
+                f"{c['verdict']} |"
+            )
+        elif "difference_s" in c:
+            lines.append(
+                f"| {c['claim']} | {c['recipe']} | {c['difference_s']:+.1f} s "
+                f"({c['time_s']:.1f} against {c['baseline_time_s']:.1f}) | Welch p = "
+                f"{c['p_value']:.2g} | - | {c['verdict']} |"
             )
         else:
             values = ", ".join(f"{k} {v:.1f} %" for k, v in sorted(c["values"].items()))
-            lines.append(f"| {c['claim']} | {c['best']} | {values} | - | - |")
+            lines.append(f"| {c['claim']} | {c['best']} | {values} | - | - | - |")
     return "\n".join(lines) + "\n"
 
 

@@ -112,3 +112,34 @@ def test_an_overlapping_difference_is_not_a_finding(tmp_path):
 def test_table_command_without_finished_runs_is_one_line(tmp_path):
     with pytest.raises(SystemExit, match="no finished run"):
         main(["table", str(tmp_path), "--out", str(tmp_path / "out")])
+
+
+def test_the_managed_surge_claim_and_the_papers_margin(tmp_path):
+    runs = [fake_run(tmp_path, "sac", "sac", "compound", s, 90.0 + s) for s in (0, 1)]
+    runs += [fake_run(tmp_path, "sac", "sac", "noise", s, 60.0 + s) for s in (0, 1)]
+    surge = tmp_path / "surge.json"
+    surge.write_text(json.dumps({"time_s": {"n": 120, "mean": 59.2, "std": 5.0}}))
+    table = write_table(runs, tmp_path / "out", baseline=surge)
+    margin = next(x for x in table["claims"] if x["claim"] == "compound >= noise")
+    # Table 6: SAC compound 99.4 %, noise 73.4 %
+    assert margin["paper_difference_points"] == pytest.approx(26.0)
+    faster = {x["claim"]: x for x in table["claims"] if "difference_s" in x}
+    compound = faster["docks faster than the managed surge controller (compound)"]
+    # the fake runs dock in 40 s (seed 0) and 41 s (seed 1)
+    assert compound["time_s"] == pytest.approx((450 * 40 + 455 * 41) / 905)
+    assert compound["difference_s"] < -17 and compound["p_value"] < 1e-6
+    assert compound["verdict"] == "holds: faster"
+    slow = tmp_path / "slow.json"
+    slow.write_text(json.dumps({"time_s": {"n": 120, "mean": 30.0, "std": 5.0}}))
+    table = write_table(runs, tmp_path / "out2", baseline=slow)
+    verdicts = {x["verdict"] for x in table["claims"] if "difference_s" in x}
+    assert verdicts == {"fails: slower"}
+    assert "Welch p" in (tmp_path / "out2" / "table.md").read_text()
+
+
+def test_a_baseline_without_times_is_one_line(tmp_path):
+    run = fake_run(tmp_path, "sac", "sac", "compound", 0, 90.0)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"success_rate": 25.4}))
+    with pytest.raises(SystemExit, match="baseline .*bad.json: not an evaluation's eval.json"):
+        main(["table", str(run), "--out", str(tmp_path / "out"), "--baseline", str(bad)])

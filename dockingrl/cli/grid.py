@@ -46,7 +46,11 @@ def cmd_table(args: argparse.Namespace) -> int:
     from dockingrl.table import write_table
 
     table = write_table(
-        args.runs, args.out, prune_policies=args.prune_policies, command=command_line()
+        args.runs,
+        args.out,
+        prune_policies=args.prune_policies,
+        command=command_line(),
+        baseline=args.baseline,
     )
     print(f"{len(table['cells'])} cells written to {args.out} (table.md, table.json, figures)")
     return 0
@@ -99,5 +103,11 @@ def add_grid_commands(sub) -> None:
         "--prune-policies",
         action="store_true",
         help="delete policy.pt from every run folder but the best seed's of each cell",
+    )
+    tb.add_argument(
+        "--baseline",
+        metavar="EVAL_JSON",
+        help="the managed surge controller's eval.json: test the claim that learned policies "
+        "dock faster (e.g. results/managed_surge/eval.json)",
     )
     tb.set_defaults(func=cmd_table)
