@@ -7,15 +7,9 @@ from __future__ import annotations
 import torch
 
 from dockingrl.env.config import DockingConfig
-from dockingrl.env.dynamics import (
-    noisy_observation,
-    observation_from_state,
-    pid_thrust,
-    pose_update,
-    velocity_update,
-)
+from dockingrl.env.dynamics import pid_thrust, pose_update, velocity_update
 from dockingrl.env.realism import limit_thrust
-from dockingrl.env.reward import contact_score
+from dockingrl.env.transition import step_outcome
 
 
 def make_transition(
@@ -37,7 +31,6 @@ def make_transition(
     entries (``observation``, ``true_state``, ``reward``, the done flags, ``success``,
     ``contact_score``, ``contact_speed``)."""
     cfg = config
-    speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
 
     def transition(
         pose,
@@ -85,33 +78,19 @@ def make_transition(
 
         x, y, alpha = pose.unbind(-1)
         u, v, r = velocity.unbind(-1)
-        observation = observation_from_state(x, y, alpha, u, v, r, current)
-        rho, vx, vy = observation[:, 0], observation[:, 3], observation[:, 4]
-        speed = torch.sqrt(vx * vx + vy * vy)
-        contact = (
-            (x >= cfg.dock_x[0])
-            & (x <= cfg.dock_x[1])
-            & (y >= cfg.dock_y[0])
-            & (y <= cfg.dock_y[1])
-        )
-        score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
-        score = torch.where(contact, score, torch.zeros_like(score))
-        reward = step_reward(rho, tau, speed, score)
-        if noise is not None:
-            observation = noisy_observation(observation, noise, noise_std)
-        terminated = contact.unsqueeze(-1)
+        end = step_outcome(cfg, x, y, alpha, u, v, r, current, tau, step_reward, noise, noise_std)
+        terminated = end.contact.unsqueeze(-1)
         truncated = (step_count >= cfg.max_steps) & ~terminated
-        success = contact & (score > 0) & (speed <= speed_limit)
         out = {
-            "observation": observation,
+            "observation": end.observation,
             "true_state": torch.cat((pose, velocity), dim=-1),
-            "reward": reward.unsqueeze(-1),
+            "reward": end.reward.unsqueeze(-1),
             "done": terminated | truncated,
             "terminated": terminated,
             "truncated": truncated,
-            "success": success.unsqueeze(-1),
-            "contact_score": score.unsqueeze(-1),
-            "contact_speed": torch.where(contact, speed, torch.zeros_like(speed)).unsqueeze(-1),
+            "success": end.success.unsqueeze(-1),
+            "contact_score": end.contact_score.unsqueeze(-1),
+            "contact_speed": end.contact_speed.unsqueeze(-1),
         }
         return pose, velocity, integral, error, step_count, out
 

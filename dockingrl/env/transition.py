@@ -53,6 +53,45 @@ class StepOutput(NamedTuple):
     contact_speed: object
 
 
+class Outcome(NamedTuple):
+    """What a step ends with once the vehicle has moved: the observation of eq. 2 (noisy when
+    noise was given), the reward of eq. 12, the contact with the station, success, and the
+    contact's score and speed (0 off contact)."""
+
+    observation: object
+    reward: object
+    contact: object
+    success: object
+    contact_score: object
+    contact_speed: object
+
+
+def step_outcome(
+    config: DockingConfig, x, y, alpha, u, v, r, current, tau, reward, noise=None, noise_std=None
+) -> Outcome:
+    """The end of a step from the moved vehicle's pose ``(x, y, alpha)``, body velocity
+    ``(u, v, r)`` and the current ``(..., 2)``: the observation of eq. 2 and Table 2's noise,
+    the contact's score, the reward of eq. 12 (``reward(rho, tau, speed, score)``, ``tau`` the
+    thrusts ``(..., 2)``) and success (Sec. 4.1), on a batch's tensors or one env's floats."""
+    cfg = config
+    xp = ops(x)
+    observation = observation_from_state(x, y, alpha, u, v, r, current)
+    rho, _, _, vx, vy, _ = xp.unbind(observation, -1)
+    speed = xp.sqrt(vx * vx + vy * vy)
+    contact = (
+        (x >= cfg.dock_x[0]) & (x <= cfg.dock_x[1]) & (y >= cfg.dock_y[0]) & (y <= cfg.dock_y[1])
+    )
+    score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
+    score = xp.where(contact, score, xp.zeros_like(score))
+    reward = reward(rho, tau, speed, score)
+    if noise is not None:
+        observation = noisy_observation(observation, noise, noise_std)
+    speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
+    success = contact & (score > 0) & (speed <= speed_limit)
+    contact_speed = xp.where(contact, speed, xp.zeros_like(speed))
+    return Outcome(observation, reward, contact, success, score, contact_speed)
+
+
 def paper_step(
     config: DockingConfig,
     gains: tuple,
@@ -99,20 +138,21 @@ def paper_step(
     x, y, alpha = xp.unbind(pose_update(pose, xp.stack((u, v, r), dim=-1), current, cfg.dt), -1)
     step_count = state.step_count + 1
 
-    observation = observation_from_state(x, y, alpha, u, v, r, current)
-    rho, _, _, vx, vy, _ = xp.unbind(observation, -1)
-    speed = xp.sqrt(vx * vx + vy * vy)
-    contact = (
-        (x >= cfg.dock_x[0]) & (x <= cfg.dock_x[1]) & (y >= cfg.dock_y[0]) & (y <= cfg.dock_y[1])
+    end = step_outcome(
+        cfg,
+        x,
+        y,
+        alpha,
+        u,
+        v,
+        r,
+        current,
+        xp.stack((tau_u, tau_r), dim=-1),
+        reward,
+        noise,
+        noise_std,
     )
-    score = contact_score(x, y, alpha, cfg.aligned_weight, cfg.misaligned_weight)
-    score = xp.where(contact, score, xp.zeros_like(score))
-    reward = reward(rho, xp.stack((tau_u, tau_r), dim=-1), speed, score)
-    if noise is not None:
-        observation = noisy_observation(observation, noise, noise_std)
-    truncated = (step_count >= cfg.max_steps) & xp.logical_not(contact)
-    speed_limit = cfg.entry_speed_max + cfg.contact_speed_tolerance
-    success = contact & (score > 0) & (speed <= speed_limit)
+    truncated = (step_count >= cfg.max_steps) & xp.logical_not(end.contact)
     next_state = SimulatorState(
         x,
         y,
@@ -128,6 +168,13 @@ def paper_step(
         error_r,
         step_count,
     )
-    contact_speed = xp.where(contact, speed, xp.zeros_like(speed))
-    output = StepOutput(observation, reward, contact, truncated, success, score, contact_speed)
+    output = StepOutput(
+        end.observation,
+        end.reward,
+        end.contact,
+        truncated,
+        end.success,
+        end.contact_score,
+        end.contact_speed,
+    )
     return next_state, output
