@@ -33,12 +33,14 @@ def fit_new_filter(
     manoeuvre_noise: bool = False,
     context_noise: bool = False,
     range_noise_from: str = "measurement",
+    compensate_latency: bool = False,
     init=None,
     log=None,
 ):
     """A filter matched to the env config ``config`` fitted on the rollouts ``data`` as
-    ``fit`` says; ``init``: a filter whose ``Q`` and ``R`` parameters to start from. Returns
-    ``(filter, loss history)``."""
+    ``fit`` says; ``init``: a filter whose ``Q`` and ``R`` parameters to start from;
+    ``compensate_latency``: it compensates ``config``'s USBL latency. Returns ``(filter, loss
+    history)``."""
     from dockingrl.scenarios import make_filter
 
     ekf = make_filter(
@@ -46,6 +48,7 @@ def fit_new_filter(
         manoeuvre_noise=manoeuvre_noise,
         context_noise=context_noise,
         range_noise_from=range_noise_from,
+        compensate_latency=compensate_latency,
     )
     if init is not None:
         ekf.process_noise.load_state_dict(init.process_noise.state_dict())
@@ -63,6 +66,7 @@ def learn_filter(
     manoeuvre_noise: bool = False,
     context_noise: bool = False,
     range_noise_from: str = "measurement",
+    compensate_latency: bool = False,
     log=None,
     command: str = "",
 ) -> dict:
@@ -70,7 +74,8 @@ def learn_filter(
     ``noise_scale`` times Table 2's, in the world of stress level ``level`` (its sensors'
     rates, delays, dropouts and outliers: the filter updates each entry when its reading
     arrives), saved as ``out/filter_params.pt`` and scored with the hand-tuned one on held-out
-    rollouts (``out/eval.json``, returned)."""
+    rollouts (``out/eval.json``, returned). With ``compensate_latency`` both filters
+    compensate the level's USBL latency."""
     from dockingrl.env.levels import level_config
     from dockingrl.scenarios import make_filter
     from dockingrl.transforms.params import save_filter_params
@@ -88,6 +93,7 @@ def learn_filter(
         manoeuvre_noise=manoeuvre_noise,
         context_noise=context_noise,
         range_noise_from=range_noise_from,
+        compensate_latency=compensate_latency,
         log=log,
     )
     params = out / "filter_params.pt"
@@ -97,6 +103,7 @@ def learn_filter(
         objective=fit.objective,
         range_noise_from=range_noise_from,
         learn_r=fit.learn_r,
+        compensate_latency=compensate_latency,
         command=command,
     )
     held_out = record_rollouts(
@@ -108,10 +115,13 @@ def learn_filter(
         "noise_scale": noise_scale,
         "level": level,
         "range_noise_from": range_noise_from,
+        "compensate_latency": compensate_latency,
         "learn_r": fit.learn_r,
         "loss_first_last": [history[0], history[-1]],
         "wall_clock_s": time.perf_counter() - start,
-        "held_out_hand_tuned": evaluate_filter(make_filter(config), held_out),
+        "held_out_hand_tuned": evaluate_filter(
+            make_filter(config, compensate_latency=compensate_latency), held_out
+        ),
         "held_out_learned": evaluate_filter(ekf, held_out),
         "Q_sigma": ekf.process_noise().diagonal().sqrt().tolist(),
         "R_sigma": ekf.measurement_noise.std().tolist(),

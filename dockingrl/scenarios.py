@@ -106,8 +106,14 @@ def check_mirror_symmetric(env: TransformedEnv) -> None:
                 )
 
 
-def make_filter(config: DockingConfig, **ekf_kwargs) -> EKFTransform:
-    """The EKF transform matched to an env config (step length, action bounds)."""
+def make_filter(
+    config: DockingConfig, *, compensate_latency: bool = False, **ekf_kwargs
+) -> EKFTransform:
+    """The EKF transform matched to an env config (step length, action bounds); with
+    ``compensate_latency`` it compensates the config's ``usbl_latency`` (``latency_steps``
+    of :class:`EKFTransform`; nothing changes where the latency is 0)."""
+    if compensate_latency:
+        ekf_kwargs.setdefault("latency_steps", config.usbl_latency_steps)
     ekf_kwargs.setdefault("dt", config.dt)
     ekf_kwargs.setdefault("action_low", config.action_low)
     ekf_kwargs.setdefault("action_high", config.action_high)

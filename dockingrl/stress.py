@@ -22,6 +22,7 @@ def stress_ladder(
     seed: int = 0,
     base: DockingConfig | None = None,
     gate: float | None = None,
+    compensate_latency: bool = False,
     **env_kwargs,
 ) -> dict:
     """Evaluate ``policy`` on ``scenario`` at each ladder level (``episodes`` each, the same
@@ -30,10 +31,13 @@ def stress_ladder(
     Keyword Args:
         base: the config each level starts from (the paper's by default).
         gate: the EKF's chi-square innovation gate in filtered scenarios (``None``: none).
+        compensate_latency: the EKF of a filtered scenario compensates each level's USBL
+            latency (:func:`~dockingrl.scenarios.make_filter`).
         env_kwargs: more :func:`~dockingrl.make_env` options (``observe_current``, ...).
 
     Returns:
-        ``{"scenario", "episodes", "seed", "gate", "levels": [...]}``, each level with its
+        ``{"scenario", "episodes", "seed", "gate", "compensate_latency", "levels": [...]}``,
+        each level with its
         ``name``, ``description``, ``options`` and :func:`~dockingrl.evaluation.evaluate`'s
         metrics (``success_rate``, ``failures``, ...).
     """
@@ -44,10 +48,15 @@ def stress_ladder(
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     for level in levels:
         level_config(level, base)  # refuse an unknown level before the first evaluation
-    if gate is not None:
+    for name, value, option in (
+        ("gate", gate is not None, {"gate": gate}),
+        ("compensate_latency", compensate_latency, {"compensate_latency": True}),
+    ):
+        if not value:
+            continue
         if scenario not in FILTERED_OBSERVATION_KEYS:
-            raise ValueError(f"gate applies to the filtered scenarios only, not {scenario!r}")
-        env_kwargs["ekf_kwargs"] = {**env_kwargs.get("ekf_kwargs", {}), "gate": gate}
+            raise ValueError(f"{name} applies to the filtered scenarios only, not {scenario!r}")
+        env_kwargs["ekf_kwargs"] = {**env_kwargs.get("ekf_kwargs", {}), **option}
     rows = []
     for level in levels:
         metrics = evaluate(
@@ -55,7 +64,14 @@ def stress_ladder(
         )
         description, options = LEVELS[level]
         rows.append({"name": level, "description": description, "options": options, **metrics})
-    return {"scenario": scenario, "episodes": episodes, "seed": seed, "gate": gate, "levels": rows}
+    return {
+        "scenario": scenario,
+        "episodes": episodes,
+        "seed": seed,
+        "gate": gate,
+        "compensate_latency": compensate_latency,
+        "levels": rows,
+    }
 
 
 def stress_table(result: dict, name: str = "policy") -> str:
@@ -63,7 +79,8 @@ def stress_table(result: dict, name: str = "policy") -> str:
     lines = [
         f"Stress ladder of {name} on `{result['scenario']}`, {result['episodes']} episodes a "
         f"level, seed {result['seed']}"
-        + (f", EKF gate {result['gate']:g}" if result["gate"] else ""),
+        + (f", EKF gate {result['gate']:g}" if result["gate"] else "")
+        + (", EKF compensating the USBL latency" if result.get("compensate_latency") else ""),
         "",
         "| level | what breaks | success % | timeout | missed funnel | too fast |",
         "|---|---|---|---|---|---|",

@@ -159,6 +159,7 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
         out,
         noise_scale=args.noise_scale,
         level=args.level,
+        compensate_latency=args.compensate_latency,
         log=logger.log,
         **_noise_models(args),
         command=command_line(),
@@ -254,6 +255,11 @@ def add_filter_commands(sub) -> None:
         default="L0",
         help="stress level whose world the rollouts come from (L1, L4, L5: slow, late, lost "
         "and outlying fixes; docs/realism.md)",
+    )
+    lf.add_argument(
+        "--compensate-latency",
+        action="store_true",
+        help="the filter compensates the level's USBL latency (L1, L4, L5: 0.6 s)",
     )
     lf.add_argument(
         "--logger", choices=["wandb", "csv", "none"], default="wandb", help="wandb runs offline"

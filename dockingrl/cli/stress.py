@@ -27,6 +27,7 @@ def cmd_stress(args: argparse.Namespace) -> int:
         levels=levels,
         seed=args.seed,
         gate=args.gate,
+        compensate_latency=args.compensate_latency,
         device=args.device,
         **options,
     )
@@ -60,6 +61,11 @@ def add_stress_command(sub) -> None:
     st.add_argument("--levels", help=f"comma-separated levels (default: {','.join(LEVELS)})")
     st.add_argument("--seed", type=int, default=0)
     st.add_argument("--gate", type=POSITIVE, default=None, help="EKF chi-square gate (13.8)")
+    st.add_argument(
+        "--compensate-latency",
+        action="store_true",
+        help="the EKF compensates each level's USBL latency (filtered scenarios)",
+    )
     st.add_argument("--use-filter", action="store_true", help="managed surge reads the EKF")
     st.add_argument("--out", help="folder for stress.json, stress.md and stress.png")
     st.add_argument("--device", default="cpu")

@@ -14,6 +14,7 @@ from dockingrl.transforms.ekf import (
     ekf_update,
     innovation,
     innovation_covariance,
+    measurement_function,
     measurement_jacobian,
 )
 from dockingrl.transforms.filtering import EKFTransform, arrived_readings
@@ -112,11 +113,14 @@ def run_filter(
     """Run the filter over ``data`` (``(T, N)`` from :func:`record_rollouts`), re-initialising
     each env at the first step of its episodes, differentiably in ``Q`` and ``R``. With
     ``sensor_age`` in ``data`` a reading updates only at the step it arrived (as
-    :class:`EKFTransform` does in the env); ``ekf.gate`` rejects outliers as there.
+    :class:`EKFTransform` does in the env); ``ekf.gate`` rejects outliers as there, and
+    ``ekf.latency_steps`` compensates a late USBL fix as there (the innovation objectives and
+    metrics then use the compensated innovation).
 
     Args:
         state: ``(mean, cov, action)`` after the step before ``data[0]`` (truncated BPTT
-            carries it, detached); ``None`` initialises from ``data[0]``.
+            carries it, detached), with the filter's ``ekf_usbl_history`` appended when it
+            compensates a latency; ``None`` initialises from ``data[0]``.
         objective: if given, also return the mean loss per step and env.
         nis: if a list, the normalised innovation squared ``y^T S^-1 y`` of each step ``(N,)``
             is appended to it (for the first step of an episode: NaN, no prediction), over
@@ -128,8 +132,9 @@ def run_filter(
     log-likelihood, each step's over the readings that arrived at it (0 where none did).
 
     Returns:
-        ``(means, covs, (mean, cov), loss)``: the estimates after each step ``(T, N, 5)``,
-        ``(T, N, 5, 5)``, the final state and the loss (``None`` without an objective).
+        ``(means, covs, state, loss)``: the estimates after each step ``(T, N, 5)``,
+        ``(T, N, 5, 5)``, the final state (as ``state``) and the loss (``None`` without an
+        objective).
     """
     if objective is not None and objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
@@ -140,10 +145,12 @@ def run_filter(
     if state is None:
         mean, cov = ekf.initial_estimate(z[0], current[0])
         previous_action, start = action[0], 1
+        history = ekf.initial_history(measurement_function(mean, current[0]))
         means.append(mean)
         covs.append(cov)
     else:
-        (mean, cov, previous_action), start = state, 0
+        (mean, cov, previous_action, *rest), start = state, 0
+        history = rest[0] if ekf.latency_steps else None
     for t in range(start, z.shape[0]):
         applied = ekf._applied_action(previous_action)
         # the filter's age before this update: the steps since its episode's first fix
@@ -153,10 +160,12 @@ def run_filter(
         )
         previous_action = action[t]
         arrived = None if sensor_age is None else arrived_readings(sensor_age[t])
+        late = ekf.late_fix_prediction(history)
         if objective == "nll" or nis is not None:
             H = measurement_jacobian(prior_mean, current[t])
             S = innovation_covariance(prior_cov, H, torch.diag_embed(R))
-            w, L = whiten(*masked_innovation(innovation(prior_mean, z[t], current[t]), S, arrived))
+            y = innovation(prior_mean, z[t], current[t], usbl_prediction=late)
+            w, L = whiten(*masked_innovation(y, S, arrived))
         if objective == "nll":
             nll = _nll_of_whitened(w, L)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
@@ -178,8 +187,16 @@ def run_filter(
             diagonal=True,
             arrived=arrived,
             gate=ekf.gate,
+            usbl_prediction=late,
         )
         mean, cov = ekf.start_where(fresh[t], new_mean, new_cov, z[t], current[t])
+        if history is not None:
+            filtered = measurement_function(mean, current[t])
+            history = torch.where(
+                fresh[t][..., None, None],
+                ekf.initial_history(filtered),
+                ekf.pushed_history(history, filtered),
+            )
         if objective == "supervised":
             nll = gaussian_nll(state_error(mean, data["true_state"][t]), cov)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))
@@ -201,4 +218,5 @@ def run_filter(
             lags,
             torch.stack(arrivals) if arrivals else None,
         )
-    return torch.stack(means), torch.stack(covs), (mean, cov, previous_action), loss
+    state = (mean, cov, previous_action) + (() if history is None else (history,))
+    return torch.stack(means), torch.stack(covs), state, loss

@@ -162,6 +162,7 @@ def ekf_update(
     diagonal: bool = False,
     arrived: torch.Tensor | None = None,
     gate: float | None = None,
+    usbl_prediction: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Update step, eqs. 30-34, with the covariance in Joseph form.
 
@@ -189,6 +190,9 @@ def ekf_update(
             distance ``y_s^T S_s^-1 y_s`` (:func:`sensor_innovation_distance`) exceeds this
             chi-square threshold (2 degrees of freedom, e.g. :data:`CHI2_2DOF_999`): an
             outlier then leaves the estimate as predicted. ``None``: no gate.
+        usbl_prediction: ``(..., 2)`` the range and bearing predicted for the instant a late
+            USBL fix in ``z`` describes (latency compensation, not in the paper; see
+            :func:`~dockingrl.transforms.ekf_model.innovation`). ``None``: it describes now.
 
     Returns:
         The corrected ``(mean, cov)``, ``cov`` symmetric.
@@ -202,6 +206,7 @@ def ekf_update(
         *_noise_to_last(R, batch, diagonal),
         _arrived_to_last(arrived, batch),
         _checked_gate(gate),
+        _usbl_prediction_to_last(usbl_prediction, batch),
     )
     return vector_from_last(m, batch), matrix_from_last(P, batch)
 
@@ -221,6 +226,12 @@ def _arrived_to_last(arrived: torch.Tensor | None, batch: torch.Size) -> torch.T
             f"{tuple(arrived.shape)}"
         )
     return vector_to_last(arrived.expand(*batch, MEASUREMENT_DIM))
+
+
+def _usbl_prediction_to_last(prediction, batch: torch.Size) -> torch.Tensor | None:
+    if prediction is not None and prediction.shape[-1] != 2:
+        raise ValueError(f"usbl_prediction must be (..., 2), got {tuple(prediction.shape)}")
+    return None if prediction is None else vector_to_last(prediction.expand(*batch, 2))
 
 
 def _sensor_distances(P, H, y, noise, full):
@@ -278,10 +289,10 @@ def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[
     return matrix_to_last(torch.linalg.cholesky(R), batch), True
 
 
-def _update(m, P, z, current, noise, full, arrived=None, gate=None):
+def _update(m, P, z, current, noise, full, arrived=None, gate=None, usbl_prediction=None):
     xp = ops(m)
     H = measurement_jacobian(m, current, batch_last=True)  # (6, 5, N)
-    y = innovation(m, z, current, dim=0)  # (6, N)
+    y = innovation(m, z, current, dim=0, usbl_prediction=usbl_prediction)  # (6, N)
     if gate is not None:
         accepted = _sensor_distances(P, H, y, noise, full) <= gate  # (3, N)
         accepted = accepted[list(SENSOR_OF_ENTRY)]
@@ -325,9 +336,11 @@ def ekf_step(
     diagonal: bool = False,
     arrived: torch.Tensor | None = None,
     gate: float | None = None,
+    usbl_prediction: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`ekf_predict` then :func:`ekf_update` in one pass (no layout round trip between
-    them); ``R``, ``diagonal``, ``arrived`` and ``gate`` as in :func:`ekf_update`: the
+    them); ``R``, ``diagonal``, ``arrived``, ``gate`` and ``usbl_prediction`` as in
+    :func:`ekf_update`: the
     prediction runs every step, each reading updates only when it arrived and passed the gate.
     Returns ``(mean, cov, h(mean))``, the last being the filtered observation (eq. 26 of the
     estimate)."""
@@ -347,6 +360,7 @@ def ekf_step(
         full=full,
         arrived=_arrived_to_last(arrived, batch),
         gate=_checked_gate(gate),
+        usbl_prediction=_usbl_prediction_to_last(usbl_prediction, batch),
     )
     return (
         vector_from_last(m, batch),
@@ -370,6 +384,7 @@ def filter_entries(
     full=False,
     arrived=None,
     gate=None,
+    usbl_prediction=None,
 ):
     """:func:`ekf_step` on batch-last entries, or on one env's Python floats.
 
@@ -377,7 +392,8 @@ def filter_entries(
     ``current`` ``(2, N)``, ``Q`` ``(5, 5, N or 1)`` and ``sigma`` ``(6, N)``, the measurement
     sigmas of a diagonal ``R`` (``full``: the ``(6, 6, N)`` Cholesky factor of a full one); or
     the same as tuples of floats (vectors) and tuples of rows (matrices), diagonal ``R``, no
-    ``arrived`` and no ``gate``. Returns ``(mean, cov, h(mean))`` in the same form."""
+    ``arrived``, no ``gate`` and no ``usbl_prediction`` (``(2, N)``). Returns ``(mean, cov,
+    h(mean))`` in the same form."""
     m, P = _predict(mean, cov, action, current, Q, dt, k_v, k_w)
-    m, P = _update(m, P, z, current, sigma, full, arrived, gate)
+    m, P = _update(m, P, z, current, sigma, full, arrived, gate, usbl_prediction)
     return m, P, measurement_function(m, current, dim=0)

@@ -132,12 +132,27 @@ def measurement_jacobian(
 
 
 def innovation(
-    mean: torch.Tensor, z: torch.Tensor, current: torch.Tensor, *, dim: int = -1
+    mean: torch.Tensor,
+    z: torch.Tensor,
+    current: torch.Tensor,
+    *,
+    dim: int = -1,
+    usbl_prediction: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Eq. 30: ``y = z - h(x)``, with the bearing and heading residuals wrapped. ``dim``: the
-    dimension of the entries (0: batch-last)."""
+    dimension of the entries (0: batch-last).
+
+    ``usbl_prediction`` (not in the paper): the range and bearing ``h(x_s)`` the filter
+    predicted for the instant ``s`` that a late USBL fix in ``z`` describes; the fix's
+    residuals are then taken against it. This is the measurement extrapolation of a fix
+    delayed by a known latency (Larsen et al. 1998): fusing ``z + h(x) - h(x_s)`` against
+    ``h(x)``, the late fix shifted by the change the filter's own estimate predicts over the
+    delay."""
     xp = ops(mean)
-    y = xp.sub(z, measurement_function(mean, current, dim=dim))
+    predicted = measurement_function(mean, current, dim=dim)
+    if usbl_prediction is not None:
+        predicted = torch.cat((usbl_prediction, predicted.narrow(dim, 2, 4)), dim=dim)
+    y = xp.sub(z, predicted)
     rho, psi, alpha, vx, vy, w = xp.unbind(y, dim)
     return xp.stack((rho, wrap_angle(psi), wrap_angle(alpha), vx, vy, w), dim=dim)
 

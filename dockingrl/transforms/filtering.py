@@ -88,6 +88,16 @@ class EKFTransform(NoiseParameters, Transform):
             :class:`~dockingrl.env.DockingConfig` is on): a sensor's readings update the
             estimate only at an age of 0, when they arrived; the prediction runs every step.
             Without the entry every reading updates every step (the paper).
+        latency_steps: the USBL latency the filter compensates, in steps (not in the paper;
+            :func:`~dockingrl.scenarios.make_filter` takes it from the env config's
+            ``usbl_latency`` with ``compensate_latency=True``). A fix arriving at step ``t``
+            describes the vehicle at ``t - latency_steps``: its innovation is taken against the
+            range and bearing that the filter's estimate after step ``t - latency_steps``
+            predicted (measurement extrapolation, :func:`~dockingrl.transforms.ekf_model.
+            innovation`), kept per env as state ``ekf_usbl_history`` ``(latency_steps, 2)``,
+            oldest first, and filled with the first estimate's at a reset (the env's first fixes
+            of an episode describe its start). 0: a fix describes the step it arrives at (the
+            paper).
         observation_key, action_key, current_key, out_key: tensordict keys.
         compile: run the filter step through ``torch.compile`` (faster for large batches;
             the first step pays the compilation).
@@ -116,6 +126,7 @@ class EKFTransform(NoiseParameters, Transform):
         action_high: Sequence[float] | None = None,
         gate: float | None = None,
         sensor_age_key: str = "sensor_age",
+        latency_steps: int = 0,
         observation_key: str = "observation",
         action_key: str = "action",
         current_key: str = "ocean_current",
@@ -135,7 +146,17 @@ class EKFTransform(NoiseParameters, Transform):
         if gate is not None and not (isinstance(gate, int | float) and 0 < gate < math.inf):
             raise ValueError(f"gate must be a positive chi-square threshold or None, got {gate!r}")
         self.gate = None if gate is None else float(gate)
+        if (
+            isinstance(latency_steps, bool)
+            or not isinstance(latency_steps, int)
+            or latency_steps < 0
+        ):
+            raise ValueError(
+                f"latency_steps must be a whole number of steps >= 0, got {latency_steps!r}"
+            )
+        self.latency_steps = latency_steps
         self.mean_key, self.cov_key, self.age_key = "ekf_mean", "ekf_cov", "ekf_age"
+        self.history_key = "ekf_usbl_history"
         self.dt, self.k_v, self.k_w = dt, k_v, k_w
         self.process_noise = ProcessNoise(process_noise_std, manoeuvre=manoeuvre_noise)
         self.measurement_noise = MeasurementNoise(measurement_noise_std)
@@ -159,15 +180,19 @@ class EKFTransform(NoiseParameters, Transform):
         low, high = self.action_bounds.to(action)
         return clip_action(action, low, high)
 
-    def filter_step(self, mean, cov, action, z, current, age, *, sensor_age=None):
+    def filter_step(
+        self, mean, cov, action, z, current, age, *, sensor_age=None, usbl_prediction=None
+    ):
         """One predict + update with the current ``Q`` and ``R`` (what ``compile=True``
         compiles, noise models included): the previous ``action`` (clipped to the command
         bounds as the env applies it) predicts, the readings ``z`` update; ``age`` is the
         number of updates since the estimate was initialised. ``sensor_age`` ``(..., 3)``:
         the env's ages of the USBL, DVL and IMU readings; only those of age 0 update
-        (``None``: all). Readings beyond :attr:`gate` are rejected. Returns ``(mean, cov,
-        filtered)``, ``filtered`` the readings the estimate predicts (eq. 2 on it). The
-        transform calls it each step; :class:`dockingrl.OnboardPolicy` too."""
+        (``None``: all). Readings beyond :attr:`gate` are rejected. ``usbl_prediction``
+        ``(..., 2)``: the range and bearing predicted for the instant a late USBL fix
+        describes (:meth:`late_fix_prediction`; ``None``: the fix describes now). Returns
+        ``(mean, cov, filtered)``, ``filtered`` the readings the estimate predicts (eq. 2 on
+        it). The transform calls it each step; :class:`dockingrl.OnboardPolicy` too."""
         action = self._applied_action(action).to(z.dtype)
         Q, R = self.noise_covariances(mean, action, z, age)
         return ekf_step(
@@ -184,7 +209,30 @@ class EKFTransform(NoiseParameters, Transform):
             diagonal=True,
             arrived=arrived_readings(sensor_age),
             gate=self.gate,
+            usbl_prediction=usbl_prediction,
         )
+
+    def late_fix_prediction(self, history):
+        """The range and bearing ``(..., 2)`` that the estimate after step ``t -
+        latency_steps`` predicted, from the ``(..., latency_steps, 2)`` history of step ``t``
+        (``None`` without latency compensation)."""
+        return None if history is None else history[..., 0, :]
+
+    def pushed_history(self, history, filtered):
+        """The history after a step whose filtered readings are ``filtered`` ``(..., 6)``: its
+        oldest entry dropped, the new estimate's range and bearing appended."""
+        if history is None:
+            return None
+        return torch.cat((history[..., 1:, :], filtered[..., None, :2]), dim=-2)
+
+    def initial_history(self, filtered):
+        """The history at an episode's start, ``(..., latency_steps, 2)``: the first
+        estimate's range and bearing (from its ``filtered`` readings), repeated; ``None``
+        without latency compensation."""
+        if self.latency_steps == 0:
+            return None
+        shape = (*filtered.shape[:-1], self.latency_steps, 2)
+        return filtered[..., None, :2].expand(shape).clone()
 
     def initial_estimate(self, observation, current):
         """``(mean, cov)`` from an approach's first readings (the state from the inverse of eq. 26,
@@ -204,6 +252,7 @@ class EKFTransform(NoiseParameters, Transform):
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         age = tensordict.get(self.age_key)
+        history = tensordict.get(self.history_key) if self.latency_steps else None
         mean, cov, filtered = self.filter_step(
             tensordict.get(self.mean_key),
             tensordict.get(self.cov_key),
@@ -212,7 +261,10 @@ class EKFTransform(NoiseParameters, Transform):
             next_tensordict.get(self.current_key),
             age.squeeze(-1),
             sensor_age=next_tensordict.get(self.sensor_age_key, None),
+            usbl_prediction=self.late_fix_prediction(history),
         )
+        if history is not None:
+            next_tensordict.set(self.history_key, self.pushed_history(history, filtered))
         next_tensordict.set(self.mean_key, mean)
         next_tensordict.set(self.cov_key, cov)
         next_tensordict.set(self.age_key, age + 1)
@@ -235,10 +287,17 @@ class EKFTransform(NoiseParameters, Transform):
                 reset, previous_mean, tensordict.get(self.cov_key), z, current
             )
             age = torch.where(reset.unsqueeze(-1), age, tensordict.get(self.age_key))
+        filtered = measurement_function(mean, current)
+        if self.latency_steps:
+            history = self.initial_history(filtered)
+            if previous_mean is not None:
+                previous = tensordict.get(self.history_key)
+                history = torch.where(reset[..., None, None], history, previous)
+            tensordict_reset.set(self.history_key, history)
         tensordict_reset.set(self.mean_key, mean)
         tensordict_reset.set(self.cov_key, cov)
         tensordict_reset.set(self.age_key, age)
-        tensordict_reset.set(self.out_key, measurement_function(mean, current))
+        tensordict_reset.set(self.out_key, filtered)
         return tensordict_reset
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
@@ -252,13 +311,18 @@ class EKFTransform(NoiseParameters, Transform):
     # -- specs ----------------------------------------------------------------------------
     def _state_specs(self, like) -> dict:
         shape, device, dtype = like.shape[:-1], like.device, like.dtype
-        return {
+        specs = {
             self.mean_key: Unbounded(shape=(*shape, STATE_DIM), device=device, dtype=dtype),
             self.cov_key: Unbounded(
                 shape=(*shape, STATE_DIM, STATE_DIM), device=device, dtype=dtype
             ),
             self.age_key: Unbounded(shape=(*shape, 1), device=device, dtype=dtype),
         }
+        if self.latency_steps:
+            specs[self.history_key] = Unbounded(
+                shape=(*shape, self.latency_steps, 2), device=device, dtype=dtype
+            )
+        return specs
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         raw = observation_spec[self.observation_key]
