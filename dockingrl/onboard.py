@@ -13,6 +13,8 @@ A vehicle whose sensors report at their own rates (a 1 Hz USBL, say) also passes
 each sensor's reading (``sensor_age``: seconds since the USBL, DVL and IMU readings arrived,
 what the env reports with a sensor option on, docs/realism.md): the filter then updates with
 the readings of age 0 only and predicts through the others, as the training env's filter does.
+A filter that compensates the USBL's latency (``compensate_latency``, docs/realism.md) also
+keeps the range and bearing its last estimates predicted.
 ``reset()`` begins a new approach.
 """
 
@@ -68,7 +70,8 @@ class OnboardStep(nn.Module):
     """One control step as a pure function of the readings and the filter's state, the form
     :func:`export_onboard` hands to ``torch.export``:
 
-    ``(z, current, mean, cov, command, age[, sensor_age]) -> (command, mean, cov, age)``
+    ``(z, current, mean, cov, command, age[, sensor_age[, history]]) -> (command, mean, cov,
+    age[, history])``
 
     with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B, 5)``
     and ``cov`` ``(B, 5, 5)``, the previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the
@@ -76,8 +79,11 @@ class OnboardStep(nn.Module):
     ``z``). Scenarios without a filter pass ``mean`` and ``cov`` through and still count
     ``age``. ``sensor_age`` ``(B, 3)`` (optional): seconds since the USBL, DVL and IMU
     readings arrived; only those of age 0 update the filter (absent: every reading is new).
-    With ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the
-    actor's command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
+    ``history`` ``(B, latency_steps, 2)``, with a filter that compensates the USBL latency
+    (and only then): the range and bearing its last estimates predicted (the
+    :class:`~dockingrl.transforms.EKFTransform`'s ``ekf_usbl_history``). With
+    ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the actor's
+    command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
     the training env held it (:class:`~dockingrl.transforms.ActionRepeat`). With
     ``observe_command`` the actor also reads ``command`` (zeros on an approach's first step),
     as the training env's :class:`~dockingrl.transforms.PreviousAction` gave it. The command
@@ -112,11 +118,17 @@ class OnboardStep(nn.Module):
     def observe_command(self) -> bool:
         return "previous_action" in self.layout
 
-    def forward(self, z, current, mean, cov, command, age, sensor_age=None):
+    def forward(self, z, current, mean, cov, command, age, sensor_age=None, history=None):
         parts = {"observation": z, "ocean_current": current}
+        compensates = self.ekf is not None and self.ekf.latency_steps > 0
+        if compensates != (history is not None):
+            raise ValueError(
+                "history is the state of a filter that compensates the USBL latency: pass it "
+                "exactly when the filter does"
+            )
         if self.ekf is not None:
-            mean, cov, parts["filtered_observation"], age = self._filter(
-                z, current, mean, cov, command, age, sensor_age
+            mean, cov, parts["filtered_observation"], age, history = self._filter(
+                z, current, mean, cov, command, age, sensor_age, history
             )
         else:
             age = torch.where(age < 0, torch.zeros_like(age), age + 1)
@@ -127,19 +139,32 @@ class OnboardStep(nn.Module):
             new_command = self.actor(td)["action"]
         # what the env applies, and what it reports as the previous command
         new_command = clip_action(new_command, self.action_low, self.action_high)
-        if self.action_repeat == 1:
-            return new_command, mean, cov, age
-        decide = torch.remainder(age, self.action_repeat) == 0
-        return torch.where(decide, new_command, command), mean, cov, age
+        if self.action_repeat > 1:
+            decide = torch.remainder(age, self.action_repeat) == 0
+            new_command = torch.where(decide, new_command, command)
+        return (new_command, mean, cov, age) + (() if history is None else (history,))
 
-    def _filter(self, z, current, mean, cov, command, age, sensor_age):
+    def _filter(self, z, current, mean, cov, command, age, sensor_age, history):
         new_mean, new_cov, new_filtered = self.ekf.filter_step(
-            mean, cov, command, z, current, age.clamp_min(0).squeeze(-1), sensor_age=sensor_age
+            mean,
+            cov,
+            command,
+            z,
+            current,
+            age.clamp_min(0).squeeze(-1),
+            sensor_age=sensor_age,
+            usbl_prediction=self.ekf.late_fix_prediction(history),
         )
         fresh = age < 0
         mean, cov = self.ekf.start_where(fresh.squeeze(-1), new_mean, new_cov, z, current)
         filtered = torch.where(fresh, measurement_function(mean, current), new_filtered)
-        return mean, cov, filtered, torch.where(fresh, torch.zeros_like(age), age + 1)
+        if history is not None:
+            history = torch.where(
+                fresh.unsqueeze(-1),
+                self.ekf.initial_history(filtered),
+                self.ekf.pushed_history(history, filtered),
+            )
+        return mean, cov, filtered, torch.where(fresh, torch.zeros_like(age), age + 1), history
 
 
 class OnboardPolicy(nn.Module):
@@ -156,6 +181,8 @@ class OnboardPolicy(nn.Module):
         action_repeat: the actor decides every this many steps and its command is held in
             between (``--action-repeat``).
         config: the env config whose step length and command bounds the filter assumes.
+        compensate_latency: the filter compensates ``config``'s USBL latency (as the env's
+            filter built with ``compensate_latency=True``; docs/realism.md).
     """
 
     def __init__(
@@ -168,6 +195,7 @@ class OnboardPolicy(nn.Module):
         observe_command: bool = False,
         action_repeat: int = 1,
         config: DockingConfig | None = None,
+        compensate_latency: bool = False,
     ) -> None:
         super().__init__()
         if scenario not in SCENARIOS:
@@ -176,13 +204,21 @@ class OnboardPolicy(nn.Module):
         self.uses_filter = scenario in FILTERED_OBSERVATION_KEYS
         if filter_params is not None and not self.uses_filter:
             raise ValueError(f"scenario {scenario!r} has no filter: filter_params do not apply")
-        ekf = make_filter(config or DockingConfig()) if self.uses_filter else None
+        if compensate_latency and not self.uses_filter:
+            raise ValueError(
+                f"scenario {scenario!r} has no filter: compensate_latency does not apply"
+            )
+        config = config or DockingConfig()
+        ekf = (
+            make_filter(config, compensate_latency=compensate_latency) if self.uses_filter else None
+        )
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
         self.step = OnboardStep(
             actor, scenario, ekf, observe_current, action_repeat, observe_command, config
         )
-        self._state: tuple[torch.Tensor, ...] | None = None  # mean, cov, command, age
+        # mean, cov, command, age and, with latency compensation, the history
+        self._state: tuple[torch.Tensor, ...] | None = None
 
     @classmethod
     def from_file(
@@ -205,14 +241,20 @@ class OnboardPolicy(nn.Module):
         return policy.to(device)
 
     def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:
-        """The state before an approach: ``(mean, cov, command, age)`` with ``age = -1``."""
+        """The state before an approach: ``(mean, cov, command, age)`` with ``age = -1``, and
+        the ``(batch, latency_steps, 2)`` history when the filter compensates the latency."""
         like = next(self.step.actor.parameters())
         zeros = partial(torch.zeros, dtype=like.dtype, device=like.device)
+        ekf = self.step.ekf
+        history = (
+            () if ekf is None or not ekf.latency_steps else (zeros(batch, ekf.latency_steps, 2),)
+        )
         return (
             zeros(batch, 5),
             torch.eye(5, dtype=like.dtype, device=like.device).expand(batch, 5, 5).clone(),
             zeros(batch, 2),
             -torch.ones(batch, 1, dtype=like.dtype, device=like.device),
+            *history,
         )
 
     def reset(self, mask: torch.Tensor | None = None) -> None:
@@ -221,8 +263,8 @@ class OnboardPolicy(nn.Module):
         if mask is None or self._state is None:
             self._state = None
             return
-        mean, cov, command, age = self._state
-        self._state = (mean, cov, command, torch.where(mask.view(-1, 1), -1.0, age))
+        mean, cov, command, age, *history = self._state
+        self._state = (mean, cov, command, torch.where(mask.view(-1, 1), -1.0, age), *history)
 
     @torch.no_grad()
     def act(
@@ -256,8 +298,9 @@ class OnboardPolicy(nn.Module):
                 f"z has {z.shape[0]} vehicles but the filter runs on "
                 f"{self._state[0].shape[0]}: reset() first"
             )
-        command, *state = self.step(z, current, *self._state, sensor_age)
-        self._state = (state[0], state[1], command, state[2])
+        mean, cov, command, age, *history = self._state
+        command, *state = self.step(z, current, mean, cov, command, age, sensor_age, *history)
+        self._state = (state[0], state[1], command, *state[2:])
         return command[0] if single else command
 
     def _check(self, value, name: str, size: int) -> torch.Tensor:
@@ -279,14 +322,19 @@ def export_onboard(
     ``batch`` vehicles: ``torch.export.load(path).module()(z, current, mean, cov, command,
     age)`` runs with torch alone (no dockingrl, TorchRL or tensordict), and AOTInductor can
     compile it for a C++ control loop. With ``sensor_age`` the program takes the sensors' ages
-    ``(batch, 3)`` as a seventh input (sensors at their own rates). Written atomically."""
+    ``(batch, 3)`` as a seventh input (sensors at their own rates); a filter that compensates
+    the USBL latency needs them and takes and returns its history
+    ``(batch, latency_steps, 2)`` as an eighth input and fifth output. Written atomically."""
     from dockingrl.io import atomic_write
 
     z = torch.zeros(batch, OBS_DIM)
     z[:, 0] = 20.0
-    example = (z, torch.zeros(batch, 2), *policy.initial_state(batch))
+    mean, cov, command, age, *history = policy.initial_state(batch)
+    if history and not sensor_age:
+        raise ValueError("a filter that compensates the USBL latency needs sensor_age=True")
+    example = (z, torch.zeros(batch, 2), mean, cov, command, age)
     if sensor_age:
-        example = (*example, torch.zeros(batch, len(SENSORS)))
+        example = (*example, torch.zeros(batch, len(SENSORS)), *history)
     step = copy.deepcopy(policy.step).eval().requires_grad_(False)
     with torch.no_grad():
         program = torch.export.export(step, example)
