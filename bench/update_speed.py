@@ -85,10 +85,9 @@ def rate(step, seconds: float) -> float:
 # -- TorchRL -------------------------------------------------------------------------------
 def torchrl_update(algo: str, compile_update: bool = False, fast_update: bool = False):
     env = make_env("compound", 1, seed=0)
-    cfg = make_config(algo, "paper", fast_update=fast_update, device=str(DEVICE))
-    # PPOConfig refuses compile_update (from a time when compiling ClipPPOLoss did not finish);
-    # the agent reads the field when it first runs an update
-    cfg.compile_update = compile_update
+    cfg = make_config(
+        algo, "paper", fast_update=fast_update, compile_update=compile_update, device=str(DEVICE)
+    )
     agent = make_agent(cfg, OBS, env.action_spec[0], 30.0, DEVICE)
     if algo == "ppo":
         mb = PPO_MINIBATCH
@@ -98,16 +97,11 @@ def torchrl_update(algo: str, compile_update: bool = False, fast_update: bool = 
             agent.advantage.value_network(data)
             data["advantage"] = torch.randn(data.shape[0], 1, device=DEVICE)
             data["value_target"] = torch.randn(data.shape[0], 1, device=DEVICE)
-        optim, params = agent.optimizers["all"], list(agent.loss.parameters())
         index = iter(range(10**9))
 
         def step():
             i = next(index) % 32
-            batch = data[i * mb : (i + 1) * mb]
-            optim.zero_grad(set_to_none=True)
-            agent._gradients("ppo", batch)
-            torch.nn.utils.clip_grad_norm_(params, 0.5)
-            optim.step()
+            agent._minibatch_update(data[i * mb : (i + 1) * mb])
 
         return step
     agent.replay_buffer.extend(transitions(10_000))
@@ -212,7 +206,10 @@ def plain_td3():
     return step
 
 
-def plain_ppo():
+def plain_ppo(compile_gradients: bool = False):
+    """``compile_gradients``: ``torch.compile`` of the loss's forward and backward, what the
+    agents' ``compile_update`` compiles (compiling the whole update, clipping and Adam
+    included, grew past 20 GB of memory at 1 thread)."""
     actor, critic = mlp([OBS, 256, 256, 2 * ACT]), mlp([OBS, 256, 256, 1])
     params = [*actor.parameters(), *critic.parameters()]
     optim = torch.optim.Adam(params, lr=3e-4)
@@ -228,19 +225,24 @@ def plain_ppo():
     obs, raw, old_logp, adv, ret = (x.to(DEVICE) for x in (obs, raw, old_logp, adv, ret))
     index = iter(range(10**9))
 
+    def gradients(obs, raw, old_logp, a, ret):
+        mu, log_std = actor(obs).chunk(2, -1)
+        std = nn.functional.softplus(log_std) + 1e-4
+        logp = torch.distributions.Normal(mu, std).log_prob(raw).sum(-1)
+        a = (a - a.mean()) / (a.std() + 1e-8)
+        ratio = (logp - old_logp).exp()
+        objective = -torch.min(ratio * a, ratio.clamp(0.8, 1.2) * a).mean()
+        value = 0.5 * (critic(obs).squeeze(-1) - ret).pow(2).mean()
+        (objective + value).backward()
+
+    if compile_gradients:
+        gradients = torch.compile(gradients)
+
     def step():
         i = next(index) % 32
         sl = slice(i * mb, (i + 1) * mb)
-        mu, log_std = actor(obs[sl]).chunk(2, -1)
-        std = nn.functional.softplus(log_std) + 1e-4
-        logp = torch.distributions.Normal(mu, std).log_prob(raw[sl]).sum(-1)
-        a = adv[sl]
-        a = (a - a.mean()) / (a.std() + 1e-8)
-        ratio = (logp - old_logp[sl]).exp()
-        objective = -torch.min(ratio * a, ratio.clamp(0.8, 1.2) * a).mean()
-        value = 0.5 * (critic(obs[sl]).squeeze(-1) - ret[sl]).pow(2).mean()
         optim.zero_grad()
-        (objective + value).backward()
+        gradients(obs[sl], raw[sl], old_logp[sl], adv[sl], ret[sl])
         torch.nn.utils.clip_grad_norm_(params, 0.5)
         optim.step()
 
@@ -417,33 +419,41 @@ def main(argv=None) -> None:
         return
     print()
     print(
-        "| algorithm | TorchRL, compile_update | compile_update + fast_update | "
-        "plain, torch.compile | compiled TorchRL time / compiled plain | "
-        "compiled fast_update / compiled plain |"
+        "| algorithm | TorchRL, compile_update | compile_update + fast_update | plain PyTorch | "
+        "plain, torch.compile | compile_update / plain | compile_update + fast_update / plain | "
+        "compile_update / compiled plain | compile_update + fast_update / compiled plain |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for algo in args.algos:
-        # each compiled agent alternates with the compiled plain update alone: two compiled
-        # agents taking turns make dynamo recompile their shared loss code at every turn
-        # (each turn's exit from tensordict's pytree context changes a dict it guards on)
+        # each compiled agent alternates with the plain updates alone: two compiled agents
+        # taking turns make dynamo recompile their shared loss code at every turn (each turn's
+        # exit from tensordict's pytree context changes a dict it guards on)
         torch._dynamo.reset()  # drop the graphs of the agents before (memory, recompile limits)
-        plain = torch.compile(PLAIN[algo]())
+        plain = PLAIN[algo]()
+        compiled_plain = (
+            plain_ppo(compile_gradients=True) if algo == "ppo" else torch.compile(PLAIN[algo]())
+        )
         rates, ratios = {}, {}
         for name, fast in (("torchrl", False), ("fast", True)):
-            steps = {name: torchrl_update(algo, compile_update=True, fast_update=fast)}
-            steps["plain"] = plain
-            pair_rates, pair_ratios = medians(
-                alternating_rates(steps, args.seconds, args.rounds), "plain"
-            )
-            rates.update(pair_rates)
-            ratios.update(pair_ratios)
+            steps = {
+                name: torchrl_update(algo, compile_update=True, fast_update=fast),
+                "plain": plain,
+                "compiled_plain": compiled_plain,
+            }
+            rounds = alternating_rates(steps, args.seconds, args.rounds)
+            rates.update(medians(rounds, "plain")[0])
+            ratios[name] = medians(rounds, "plain")[1][name]
+            ratios[name, "compiled"] = medians(rounds, "compiled_plain")[1][name]
         print(
             f"| {algo} | {rates['torchrl']:,.0f} | {rates['fast']:,.0f} | {rates['plain']:,.0f} | "
-            f"{ratios['torchrl']:.2f}x | {ratios['fast']:.2f}x |"
+            f"{rates['compiled_plain']:,.0f} | {ratios['torchrl']:.2f}x | {ratios['fast']:.2f}x | "
+            f"{ratios['torchrl', 'compiled']:.2f}x | {ratios['fast', 'compiled']:.2f}x |"
         )
     print(
-        "(compiled rates exclude the compilation, done during the warm-up; the plain rate is "
-        "that of the second pair)"
+        "(compiled rates exclude the compilation, done during the warm-up; each compiled agent "
+        "alternates with both plain updates, whose rates are those of the second set; plain "
+        "PPO compiles the loss's forward and backward, as compile_update does, plain SAC and "
+        "TD3 the whole update)"
     )
 
 

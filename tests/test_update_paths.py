@@ -9,6 +9,7 @@ from torchrl.objectives import SoftUpdate
 
 from dockingrl.agents import make_agent
 from dockingrl.agents.config import make_config
+from dockingrl.agents.off_policy import CriticsInTurn
 from dockingrl.scenarios import make_env
 
 OBS = 12
@@ -92,3 +93,56 @@ def test_fast_update_ppo_estimates_the_same_advantages_in_chunks():
     for key in ("advantage", "value_target", "state_value"):
         assert torch.allclose(default[key], chunked[key], rtol=1e-5, atol=1e-5), key
     assert default["advantage"].std() > 0.1
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_critics_in_turn_give_torchrls_loop_numbers(algo):
+    ours, ours_state = trained(algo, 4, fast_update=True)
+    attr = "_vmap_qnetworkN0" if algo == "sac" else "_vmap_qvalue_network00"
+    assert isinstance(getattr(ours.loss, attr), CriticsInTurn)
+    spec = make_env("compound", 1, seed=0).action_spec[0]
+    torch.manual_seed(0)
+    cfg = make_config(algo, "paper", hidden=(32, 32), batch_size=64, fast_update=True)
+    agent = make_agent(cfg, OBS, spec, 30.0, "cpu")
+    type(agent.loss).__mro__[1]._make_vmap(agent.loss)  # TorchRL's own loop over the critics
+    assert not isinstance(getattr(agent.loss, attr), CriticsInTurn)
+    agent.replay_buffer.extend(transitions(500))
+    torch.manual_seed(1)
+    for _ in range(4):
+        agent._off_policy_update()
+    stock = agent.loss.state_dict()
+    for key in ours_state:
+        assert torch.equal(ours_state[key], stock[key]), key
+    # the module keeps its own parameters between calls
+    for name, tensor in ours.loss.qvalue_network.module.named_parameters():
+        assert isinstance(tensor, torch.nn.Parameter), name
+    _, start = trained(algo, 0, fast_update=True)
+    assert any((stock[k] - start[k]).abs().max() > 1e-3 for k in stock)
+
+
+def test_fast_update_ppo_calls_its_modules_directly_with_the_same_gradients():
+    spec = make_env("compound", 1, seed=0).action_spec[0]
+    grads = {}
+    data = transitions(64)
+    for fast in (False, True):
+        torch.manual_seed(0)
+        cfg = make_config("ppo", "paper", hidden=(32, 32), fast_update=fast)
+        agent = make_agent(cfg, OBS, spec, 30.0, "cpu")
+        assert agent.loss.functional is not fast
+        batch = data.clone()
+        with torch.no_grad():
+            agent.actor(batch)
+            agent.advantage.value_network(batch)
+        batch["advantage"] = torch.linspace(-1, 1, 64).unsqueeze(-1)
+        batch["value_target"] = torch.linspace(0, 2, 64).unsqueeze(-1)
+        torch.manual_seed(2)
+        agent._gradients("ppo", batch)
+        grads[fast] = [p.grad.clone() for p in agent.loss.parameters()]
+    assert len(grads[True]) == len(grads[False]) > 0
+    for ours, stock in zip(grads[True], grads[False], strict=True):
+        assert torch.equal(ours, stock)
+    assert any(g.abs().max() > 0 for g in grads[True])
+
+
+def test_ppo_accepts_compile_update():
+    assert make_config("ppo", "paper", compile_update=True).compile_update

@@ -223,11 +223,6 @@ class PPOConfig(PPOOptions, TrainConfig):
                 f"PPOConfig.minibatch_size: must be in [1, num_envs * steps_per_env = {frames}] "
                 f"(got {self.minibatch_size})"
             )
-        if self.compile_update:
-            raise ValueError(
-                "PPOConfig.compile_update: not available for PPO (compiling ClipPPOLoss did not "
-                "finish within 10 minutes on a 2-core CPU)"
-            )
 
 
 CONFIGS = {"sac": SACConfig, "td3": TD3Config, "ppo": PPOConfig}

@@ -5,9 +5,10 @@ the loop of updates after each collection."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import repeat
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
@@ -69,8 +70,65 @@ def vmap_ensembles(cfg: RunOptions) -> bool:
     """Whether the twin critics run through ``torch.vmap`` (one batched matrix product per
     layer, TorchRL's default) rather than one after the other. With ``fast_update`` on a CPU
     they run one after the other: the batched products (``bmm``) of an update took 1.7x the
-    time of the plain ones at the paper's sizes, 1 thread (other roundings, hence opt-in)."""
-    return not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
+    time of the plain ones at the paper's sizes, 1 thread (other roundings, hence opt-in).
+    Not with ``compile_update``: TorchRL's loop over the critics swaps a global pytree
+    registry at each call, which makes dynamo recompile the loss at every update."""
+    return cfg.compile_update or not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
+
+
+class CriticsInTurn:
+    """What TorchRL's losses call to evaluate their Q-networks on the stacked parameters of
+    the twin critics, with ``deactivate_vmap``: each critic in turn, as TorchRL's own loop
+    (``_pseudo_vmap``) runs them, to the same numbers, but with each critic's parameters put
+    straight into the module's parameter tables instead of through tensordicts (``unbind`` of
+    the parameters and ``to_module`` into the ``TensorDictModule`` for each critic, on every
+    call: three calls per SAC update). Returns a tensordict holding the stacked Q-values.
+
+    ``batched_inputs``: the inputs have the critics' dimension first (TD3's losses), else all
+    critics read the same inputs (SAC's)."""
+
+    def __init__(self, qvalue: TensorDictModule, batched_inputs: bool) -> None:
+        self.module, self.in_keys = qvalue.module, qvalue.in_keys
+        self.out_key = qvalue.out_keys[0]
+        self.batched_inputs = batched_inputs
+        self._slots: list | None = None
+
+    def _resolve(self, params: TensorDictBase) -> list:
+        """``(key in params, parameter or buffer table, name)`` of each of the critic's
+        tensors (``params`` is keyed from the ``TensorDictModule``, whose ``module`` this
+        is)."""
+        slots = []
+        for key in params.keys(True, True):
+            owner = self.module
+            for part in key[1:-1]:
+                owner = getattr(owner, part)
+            table = owner._parameters if key[-1] in owner._parameters else owner._buffers
+            slots.append((key, table, key[-1]))
+        return slots
+
+    def __call__(self, tensordict: TensorDictBase, params: TensorDictBase) -> TensorDictBase:
+        if self._slots is None:
+            self._slots = self._resolve(params)
+        slots = self._slots
+        per_critic = list(zip(*(params.get(key).unbind(0) for key, _, _ in slots), strict=True))
+        inputs = [tensordict.get(key) for key in self.in_keys]
+        per_input = (
+            zip(*(x.unbind(0) for x in inputs), strict=True)
+            if self.batched_inputs
+            else repeat(inputs, len(per_critic))
+        )
+        kept = [table[name] for _, table, name in slots]
+        values = []
+        try:
+            for tensors, args in zip(per_critic, per_input, strict=True):
+                for (_, table, name), tensor in zip(slots, tensors, strict=True):
+                    table[name] = tensor
+                values.append(self.module(*args))
+        finally:
+            for (_, table, name), tensor in zip(slots, kept, strict=True):
+                table[name] = tensor
+        value = torch.stack(values)
+        return TensorDict({self.out_key: value}, batch_size=value.shape[:-1])
 
 
 def replay_buffer(cfg: OffPolicyOptions, device) -> TensorDictReplayBuffer:

@@ -59,6 +59,10 @@ class PPOAgent(Agent):
             critic_coeff=cfg.value_coef,
             loss_critic_type="l2",
             normalize_advantage=cfg.normalize_advantage,
+            # fast_update: the loss calls the modules with their own parameters instead of
+            # swapping its copies in and out at each call (the same numbers; its state_dict
+            # names them after the modules, another checkpoint layout, hence opt-in)
+            functional=not cfg.fast_update,
         )
         generator = torch.Generator().manual_seed(cfg.seed)
         return cls(
@@ -83,7 +87,6 @@ class PPOAgent(Agent):
             lr = cfg.lr * (1.0 - min(max(progress, 0.0), 1.0))
         for group in optim.param_groups:
             group["lr"] = lr
-        params = list(self.loss.parameters())
         frames = data.numel()
         if cfg.reward_scale != 1.0:
             data = data.clone(recurse=False)
@@ -97,17 +100,26 @@ class PPOAgent(Agent):
                 flat = data.reshape(-1).select(*self._minibatch_keys(), strict=False)
             order = torch.randperm(frames, generator=self.extra["generator"])
             for start in range(0, frames, cfg.minibatch_size):
-                batch = flat[order[start : start + cfg.minibatch_size]]
-                optim.zero_grad(set_to_none=True)
-                out = self._gradients("ppo", batch)
-                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
-                optim.step()
-                self._average_actor()
-                self.updates += 1
+                out = self._minibatch_update(flat[order[start : start + cfg.minibatch_size]])
                 for key, value in out.items():
                     logs.setdefault(key, []).append(scalar(value))
         logs["lr"] = [lr]
         return {k: sum(v) / len(v) for k, v in logs.items()}
+
+    def _minibatch_update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One gradient step on a minibatch: forward and backward of the loss, the gradient
+        clipped to ``max_grad_norm``, Adam; returns the detached logged values."""
+        optim = self.optimizers["all"]
+        optim.zero_grad(set_to_none=True)
+        out = self._gradients("ppo", batch)
+        params = self.extra.get("params")
+        if params is None:
+            params = self.extra["params"] = list(self.loss.parameters())
+        torch.nn.utils.clip_grad_norm_(params, self.config.max_grad_norm)
+        optim.step()
+        self._average_actor()
+        self.updates += 1
+        return out
 
     def _minibatch_keys(self) -> list:
         """What a minibatch carries: the loss's inputs and the advantage estimator's outputs

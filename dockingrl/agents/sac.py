@@ -7,7 +7,17 @@ from torchrl.objectives import SACLoss
 
 from dockingrl.agents.base import adam
 from dockingrl.agents.config import SACConfig
-from dockingrl.agents.off_policy import OffPolicyAgent, vmap_ensembles
+from dockingrl.agents.off_policy import CriticsInTurn, OffPolicyAgent, vmap_ensembles
+
+
+class TwinCriticSACLoss(SACLoss):
+    """TorchRL's ``SACLoss``; with ``deactivate_vmap`` the twin critics run through
+    :class:`CriticsInTurn` (the same numbers as TorchRL's loop over them)."""
+
+    def _make_vmap(self) -> None:
+        super()._make_vmap()
+        if self.deactivate_vmap:
+            self._vmap_qnetworkN0 = CriticsInTurn(self.qvalue_network, batched_inputs=False)
 
 
 class SACAgent(OffPolicyAgent):
@@ -15,7 +25,7 @@ class SACAgent(OffPolicyAgent):
 
     @classmethod
     def make_loss(cls, cfg: SACConfig, actor, qvalue, action_spec) -> SACLoss:
-        return SACLoss(
+        return TwinCriticSACLoss(
             actor_network=actor,
             qvalue_network=qvalue,
             num_qvalue_nets=2,

@@ -9,7 +9,17 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import TD3Loss
 
 from dockingrl.agents.config import TD3Config
-from dockingrl.agents.off_policy import OffPolicyAgent, vmap_ensembles
+from dockingrl.agents.off_policy import CriticsInTurn, OffPolicyAgent, vmap_ensembles
+
+
+class TwinCriticTD3Loss(TD3Loss):
+    """TorchRL's ``TD3Loss``; with ``deactivate_vmap`` the twin critics run through
+    :class:`CriticsInTurn` (the same numbers as TorchRL's loop over them)."""
+
+    def _make_vmap(self) -> None:
+        super()._make_vmap()
+        if self.deactivate_vmap:
+            self._vmap_qvalue_network00 = CriticsInTurn(self.qvalue_network, batched_inputs=True)
 
 
 class TD3Agent(OffPolicyAgent):
@@ -30,7 +40,7 @@ class TD3Agent(OffPolicyAgent):
 
     @classmethod
     def make_loss(cls, cfg: TD3Config, actor, qvalue, action_spec) -> TD3Loss:
-        return TD3Loss(
+        return TwinCriticTD3Loss(
             actor_network=actor,
             qvalue_network=qvalue,
             action_spec=action_spec,
