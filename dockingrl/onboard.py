@@ -237,7 +237,10 @@ class OnboardPolicy(nn.Module):
         options = pipeline_options(info["config"])
         check_env_layout(info, info["scenario"], options)
         params = filter_params if filter_params is not None else training_filter(info)
-        policy = cls(actor, info["scenario"], filter_params=params, **options)
+        compensate = options.pop("ekf_kwargs", {}).get("compensate_latency", False)
+        policy = cls(
+            actor, info["scenario"], filter_params=params, compensate_latency=compensate, **options
+        )
         return policy.to(device)
 
     def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:

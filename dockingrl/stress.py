@@ -32,7 +32,8 @@ def stress_ladder(
         base: the config each level starts from (the paper's by default).
         gate: the EKF's chi-square innovation gate in filtered scenarios (``None``: none).
         compensate_latency: the EKF of a filtered scenario compensates each level's USBL
-            latency (:func:`~dockingrl.scenarios.make_filter`).
+            latency (:func:`~dockingrl.scenarios.make_filter`); on too where ``env_kwargs``
+            (a policy's, trained with ``compensate_latency``) carry it.
         env_kwargs: more :func:`~dockingrl.make_env` options (``observe_current``, ...).
 
     Returns:
@@ -57,6 +58,7 @@ def stress_ladder(
         if scenario not in FILTERED_OBSERVATION_KEYS:
             raise ValueError(f"{name} applies to the filtered scenarios only, not {scenario!r}")
         env_kwargs["ekf_kwargs"] = {**env_kwargs.get("ekf_kwargs", {}), **option}
+    compensate_latency = bool(env_kwargs.get("ekf_kwargs", {}).get("compensate_latency"))
     rows = []
     for level in levels:
         metrics = evaluate(

@@ -612,6 +612,33 @@ def test_train_level_sets_the_whole_world_of_the_run(tmp_path, short_episodes, m
         tiny_config("sac", "compound", tmp_path, train_level="L9")
 
 
+def test_compensate_latency_reaches_the_training_filter_and_the_saved_policy(
+    tmp_path, short_episodes
+):
+    from dockingrl import training
+    from dockingrl.onboard import OnboardPolicy
+    from dockingrl.policies import load_policy
+    from dockingrl.stress import stress_ladder
+
+    cfg = tiny_config("sac", "compound", tmp_path, train_level="L1", compensate_latency=True)
+    kwargs = training.env_kwargs(cfg)
+    assert kwargs["ekf_kwargs"] == {"compensate_latency": True}
+    assert "ekf_kwargs" not in training.env_kwargs(tiny_config("sac", "compound", tmp_path))
+    from dockingrl.scenarios import make_env
+
+    env = make_env("compound", 2, seed=0, **kwargs)
+    ekf = next(t for t in env.transform if type(t).__name__ == "EKFTransform")
+    assert ekf.latency_steps == kwargs["config"].usbl_latency_steps > 0
+    result = train(cfg, progress=False)
+    path = Path(result["run_dir"]) / "policy.pt"
+    assert OnboardPolicy.from_file(path).step.ekf.latency_steps == 0  # L0: no latency
+    policy, _, scenario, options, _ = load_policy(str(path))
+    ladder = stress_ladder(policy, scenario, episodes=4, levels=("L1",), **options)
+    assert ladder["compensate_latency"] is True
+    with pytest.raises(ValueError, match="compensate_latency: scenario 'noise' has no filter"):
+        tiny_config("sac", "noise", tmp_path, compensate_latency=True)
+
+
 def test_ppo_stable_baselines3_style_policy_options(tmp_path, short_episodes):
     """``state_independent_scale``: one learned scale per action, the same for every
     observation; ``orthogonal_init``: orthogonal layers, a near-zero policy output; ``tanh``

@@ -98,6 +98,7 @@ TRAIN_FIELDS = (
     "mirror_symmetric",
     "action_repeat",
     "fast_update",
+    "compensate_latency",
 )
 
 

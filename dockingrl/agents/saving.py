@@ -41,10 +41,13 @@ KEYS = (
 def pipeline_options(config: Mapping) -> dict:
     """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (as a
     dict, e.g. a saved policy's ``config``) fixes for whatever runs its policy:
-    ``observe_current``, ``observe_command`` and ``action_repeat``, where they differ from the
-    paper's. Training, ``dockingrl eval --policy`` and ``OnboardPolicy.from_file`` all take them
-    from here."""
+    ``observe_current``, ``observe_command``, ``action_repeat`` and the filter's
+    ``compensate_latency`` (as ``ekf_kwargs``), where they differ from the paper's. Training,
+    ``dockingrl eval --policy``, ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take
+    them from here."""
     options: dict = {}
+    if config.get("compensate_latency"):
+        options["ekf_kwargs"] = {"compensate_latency": True}
     if config.get("observe_current"):
         options["observe_current"] = True
     if config.get("observe_command"):

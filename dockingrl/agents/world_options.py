@@ -48,6 +48,12 @@ class WorldOptions:
         "paper)",
         default="L0",
     )
+    compensate_latency: bool = documented(
+        "the EKF of a filtered scenario compensates the USBL latency of the run's world "
+        "(train_level; docs/realism.md): a late fix is compared with the estimate of the "
+        "instant it describes (not in the paper)",
+        default=False,
+    )
     observe_current: bool = documented(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
@@ -88,3 +94,7 @@ class WorldOptions:
                 raise ValueError(f"{type(self).__name__}.{name}: {problem}")
         if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
+        if not isinstance(self.compensate_latency, bool):
+            refuse(self, "compensate_latency", "must be true or false")
+        if self.compensate_latency and self.scenario not in FILTERED_OBSERVATION_KEYS:
+            refuse(self, "compensate_latency", f"scenario {self.scenario!r} has no filter")
