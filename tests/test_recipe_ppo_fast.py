@@ -1,0 +1,50 @@
+"""The ``ppo-fast`` recipe of the main job: what it sets, that ``main.sh`` trains it with no
+other config option, and a smoke run of ``dockingrl train --recipe ppo-fast``."""
+
+import json
+import re
+from pathlib import Path
+
+from test_recipes import TINY, TINY_ALGO
+
+from dockingrl.cli import main
+from dockingrl.recipes import load_recipe, recipe_names
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ppo_fast_is_shipped_and_sized_for_the_main_job():
+    assert "ppo-fast" in recipe_names()
+    recipe = load_recipe("ppo-fast")
+    cfg = recipe.make_config()
+    assert (recipe.algo, cfg.recipe, cfg.scenario) == ("ppo", "ppo-fast", "compound")
+    # advantages once per rollout, and no periodic evaluation or end-of-run selection
+    assert not cfg.advantage_every_epoch and cfg.fast_update
+    assert cfg.eval_every > cfg.total_steps and not cfg.keep_best
+    # the main job's bar is measured on 2,000 episodes
+    assert cfg.final_eval_episodes == 2000
+
+
+def test_main_sh_trains_the_ppo_fast_recipe_alone():
+    script = (ROOT / "main.sh").read_text()
+    calls = re.findall(r"-m dockingrl train ([^\n]*)", script)
+    assert len(calls) == 1
+    options = calls[0].split()
+    assert options[:2] == ["--recipe", "ppo-fast"]
+    # no config field beyond the recipe's, except where the run folder goes
+    assert [o for o in options if o.startswith("--")] == ["--recipe", "--out"]
+
+
+def test_train_with_the_ppo_fast_recipe(tmp_path, short_episodes):
+    argv = ["train", "--recipe", "ppo-fast", "--out", str(tmp_path), "--run-name", "r"]
+    argv += [*TINY, *TINY_ALGO["ppo"], "--epochs", "2"]
+    assert main(argv) == 0
+    config = json.loads((tmp_path / "r" / "config.json").read_text())
+    assert (config["recipe"], config["algo"], config["advantage_every_epoch"]) == (
+        "ppo-fast",
+        "ppo",
+        False,
+    )
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["frames"] >= 1600
+    assert json.loads((tmp_path / "r" / "eval.json").read_text())["episodes"] == 4
