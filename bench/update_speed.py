@@ -3,7 +3,7 @@ plain-PyTorch implementation of the same update, in the same process, and the fl
 update's matrix-product FLOPs over this CPU's measured matmul rate at those shapes.
 
 Usage: ``python bench/update_speed.py [--seconds 5] [--rounds 5] [--threads 1]
-[--algos sac td3 ppo] [--device cuda] [--no-compile]``
+[--algos sac td3 ppo] [--device cuda] [--no-compile] [--fast-paths]``
 
 TorchRL and plain updates are timed in alternating rounds, so that a drift in the machine's
 speed (frequent on shared CPUs) hits all alike; the ratios are medians of per-round ratios.
@@ -363,6 +363,40 @@ def write_paths(algo: str, seconds: float, rounds: int) -> None:
     )
 
 
+def fast_paths(algo: str, seconds: float, rounds: int) -> None:
+    """``fast_update``'s own paths against TorchRL's in the same update, with the default and
+    the plain updates beside them, in alternating rounds: for SAC and TD3 the twin critics in
+    turn (``off_policy.CriticsInTurn``) against TorchRL's loop over them, for PPO the loss
+    calling its modules directly against its functional calls."""
+    import dockingrl.agents.ppo as ppo_module
+
+    def torchrl_paths():
+        if algo != "ppo":
+            update = torchrl_update(algo, fast_update=True)
+            loss = update.__self__.loss
+            type(loss).__mro__[1]._make_vmap(loss)  # the TorchRL loss's own
+            return update
+        stock = ppo_module.ClipPPOLoss
+        ppo_module.ClipPPOLoss = lambda *a, **k: stock(*a, **{**k, "functional": True})
+        try:
+            return torchrl_update(algo, fast_update=True)
+        finally:
+            ppo_module.ClipPPOLoss = stock
+
+    steps = {
+        "default": torchrl_update(algo),
+        "ours": torchrl_update(algo, fast_update=True),
+        "torchrl": torchrl_paths(),
+        "plain": PLAIN[algo](),
+    }
+    rates, ratios = medians(alternating_rates(steps, seconds, rounds), "plain")
+    print(
+        f"| {algo} | {rates['default']:,.0f} | {rates['ours']:,.0f} | {rates['torchrl']:,.0f} | "
+        f"{rates['plain']:,.0f} | {ratios['default']:.2f}x | {ratios['ours']:.2f}x | "
+        f"{ratios['torchrl']:.2f}x |"
+    )
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="per variant, all rounds")
@@ -379,6 +413,11 @@ def main(argv=None) -> None:
         action="store_true",
         help="instead: the agents' direct output writes against TensorDictModule's from_any path",
     )
+    parser.add_argument(
+        "--fast-paths",
+        action="store_true",
+        help="instead: fast_update's own paths against TorchRL's (critics' loop, functional PPO)",
+    )
     args = parser.parse_args(argv)
     global DEVICE, PPO_MINIBATCH
     DEVICE = torch.device(args.device)
@@ -386,6 +425,17 @@ def main(argv=None) -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     print(f"machine: {describe_machine(DEVICE)}, updates on {DEVICE}")
+    if args.fast_paths:
+        print(
+            "| algorithm | TorchRL updates/s | fast_update | fast_update, TorchRL's paths | "
+            "plain PyTorch | TorchRL / plain | fast_update / plain | "
+            "fast_update, TorchRL's paths / plain |"
+        )
+        print("|---|---|---|---|---|---|---|---|")
+        for algo in args.algos:
+            fast_paths(algo, args.seconds, args.rounds)
+        print(f"(medians over {args.rounds} alternating rounds, ratios of per-round times)")
+        return
     if args.write_paths:
         for algo in args.algos:
             write_paths(algo, args.seconds, args.rounds)
