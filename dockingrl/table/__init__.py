@@ -216,8 +216,9 @@ def markdown(table: dict) -> str:
         elif "difference_s" in c:
             lines.append(
                 f"| {c['claim']} | {c['recipe']} | {c['difference_s']:+.1f} s "
-                f"({c['time_s']:.1f} against {c['baseline_time_s']:.1f}) | Welch p = "
-                f"{c['p_value']:.2g} | - | {c['verdict']} |"
+                f"({c['time_s']:.1f} against {c['baseline_time_s']:.1f}) | Welch p "
+                + (f"= {c['p_value']:.2g}" if c["p_value"] > 0 else "< 1e-300")
+                + f" | - | {c['verdict']} |"
             )
         else:
             values = ", ".join(f"{k} {v:.1f} %" for k, v in sorted(c["values"].items()))
