@@ -70,10 +70,8 @@ def vmap_ensembles(cfg: RunOptions) -> bool:
     """Whether the twin critics run through ``torch.vmap`` (one batched matrix product per
     layer, TorchRL's default) rather than one after the other. With ``fast_update`` on a CPU
     they run one after the other: the batched products (``bmm``) of an update took 1.7x the
-    time of the plain ones at the paper's sizes, 1 thread (other roundings, hence opt-in).
-    Not with ``compile_update``: TorchRL's loop over the critics swaps a global pytree
-    registry at each call, which makes dynamo recompile the loss at every update."""
-    return cfg.compile_update or not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
+    time of the plain ones at the paper's sizes, 1 thread (other roundings, hence opt-in)."""
+    return not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
 
 
 class CriticsInTurn:
