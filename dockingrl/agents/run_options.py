@@ -65,8 +65,9 @@ class RunOptions:
     )
     fast_update: bool = documented(
         "faster gradient updates that round differently from the default (same arithmetic, "
-        "other kernels and order): fused Adam steps, and on a CPU SAC's and TD3's twin critics "
-        "as two matrix products each instead of vmap's batched one (not in the paper)",
+        "other kernels and order): fused Adam steps; on a CPU SAC's and TD3's twin critics "
+        "in turn, two matrix products each instead of vmap's batched one; PPO's loss without "
+        "parameter swaps and its GAE in chunks (not in the paper)",
         default=False,
     )
 
