@@ -21,8 +21,8 @@ def test_ppo_fast_is_shipped_and_sized_for_the_main_job():
     # advantages once per rollout, and no periodic evaluation or end-of-run selection
     assert not cfg.advantage_every_epoch and cfg.fast_update
     assert cfg.eval_every > cfg.total_steps and not cfg.keep_best
-    # the main job's bar is measured on 2,000 episodes
-    assert cfg.final_eval_episodes == 2000
+    # the main job's bar is measured on 2,000 episodes, at the thread count of its probes
+    assert cfg.final_eval_episodes == 2000 and cfg.threads == 1
 
 
 def test_main_sh_trains_the_ppo_fast_recipe_alone():
