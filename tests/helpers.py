@@ -1,5 +1,6 @@
-"""Small builders shared by the tests: an untrained actor and a training config sized for a
-smoke run, and the repository's root for the files it commits."""
+"""Small builders shared by the tests: an untrained actor, a training config sized for a smoke
+run, an env step that restarts onboard policies, and the repository's root for the files it
+commits."""
 
 from pathlib import Path
 
@@ -21,6 +22,18 @@ def tiny_actor(obs_dim, algo="sac", seed=0):
     env = make_env("noise", 1, seed=0)
     cfg = make_config(algo, "paper", scenario="compound", hidden=(32, 32))
     return build_actor(cfg, obs_dim, env.action_spec[0], 30.0).eval()
+
+
+def step_onboard(env, td, command, *policies):
+    """Step ``env`` from ``td`` with ``command`` and begin a new approach in each onboard
+    policy of ``policies`` wherever an episode ended; returns ``(next td, done)``, ``done``
+    ``(num_envs,)`` bool."""
+    td["action"] = command
+    out, td = env.step_and_maybe_reset(td)
+    done = out["next", "done"].squeeze(-1)
+    for policy in policies:
+        policy.reset(done)
+    return td, done
 
 
 def smoke_config(algo, scenario, tmp_path, run_name, **overrides):

@@ -3,7 +3,7 @@ filter offline (run_filter on recorded rollouts), in the env (EKFTransform) and 
 
 import pytest
 import torch
-from helpers import tiny_actor
+from helpers import step_onboard, tiny_actor
 from tensordict import TensorDict
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -151,12 +151,8 @@ def test_onboard_policy_with_sensor_ages_commands_what_the_env_pipeline_does():
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             obs = TensorDict({"observation": td["observation"]}, batch_size=[8])
             torch.testing.assert_close(command, actor(obs)["action"], rtol=1e-5, atol=1e-6)
-        td["action"] = command
-        out, td = env.step_and_maybe_reset(td)
-        done = out["next", "done"].squeeze(-1)
+        td, done = step_onboard(env, td, command, onboard, blind)
         resets += int(done.sum())
-        onboard.reset(done)
-        blind.reset(done)
     assert resets > 0 and differs
 
 

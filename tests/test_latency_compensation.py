@@ -232,7 +232,7 @@ def test_bad_latency_steps_are_refused():
 
 
 def test_onboard_policy_and_its_export_compensate_as_the_env_pipeline_does(tmp_path):
-    from helpers import tiny_actor
+    from helpers import step_onboard, tiny_actor
 
     from dockingrl import make_env
     from dockingrl.onboard import OnboardPolicy, export_onboard
@@ -256,12 +256,8 @@ def test_onboard_policy_and_its_export_compensate_as_the_env_pipeline_does(tmp_p
         exported, *rest = program(z, current, *state[:4], ages, state[4])
         torch.testing.assert_close(exported, command, rtol=1e-5, atol=1e-6)
         state = (rest[0], rest[1], exported, *rest[2:])
-        td["action"] = command
-        out, td = env.step_and_maybe_reset(td)
-        done = out["next", "done"].squeeze(-1)
+        td, done = step_onboard(env, td, command, onboard, plain)
         resets += int(done.sum())
-        onboard.reset(done)
-        plain.reset(done)
         state = (*state[:3], torch.where(done.view(-1, 1), -1.0, state[3]), state[4])
     assert resets > 0 and differs
     with pytest.raises(ValueError, match="needs sensor_age=True"):

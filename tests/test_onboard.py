@@ -5,7 +5,7 @@ import sys
 
 import pytest
 import torch
-from helpers import PPO_COMPOUND_POLICY, tiny_actor
+from helpers import PPO_COMPOUND_POLICY, step_onboard, tiny_actor
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -45,11 +45,8 @@ def test_onboard_commands_match_the_env_pipeline_across_resets(algo, scenario):
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             expected = actor(TensorDict({"observation": obs}, batch_size=[16]))["action"]
         torch.testing.assert_close(command, expected, rtol=1e-5, atol=1e-6)
-        td["action"] = command
-        out, td = env.step_and_maybe_reset(td)
-        done = out["next", "done"].squeeze(-1)
+        td, done = step_onboard(env, td, command, onboard)
         resets += int(done.sum())
-        onboard.reset(done)
     assert resets > 0  # episodes ended and the filter was re-initialised in those envs
 
 
@@ -128,10 +125,7 @@ def test_exported_onboard_program_runs_with_torch_alone(tmp_path):
         command, *filter_state = program(z, current, *state)
         torch.testing.assert_close(command, policy.act(z, current), rtol=1e-5, atol=1e-6)
         state = (filter_state[0], filter_state[1], command, filter_state[2])
-        td["action"] = command
-        out, td = env.step_and_maybe_reset(td)
-        done = out["next", "done"].squeeze(-1)
-        policy.reset(done)
+        td, done = step_onboard(env, td, command, policy)
         state = (*state[:3], torch.where(done.view(-1, 1), -1.0, state[3]))
 
     # the program needs torch alone: load and run it where dockingrl, TorchRL and tensordict
