@@ -158,12 +158,7 @@ class OnboardStep(nn.Module):
         fresh = age < 0
         mean, cov = self.ekf.start_where(fresh.squeeze(-1), new_mean, new_cov, z, current)
         filtered = torch.where(fresh, measurement_function(mean, current), new_filtered)
-        if history is not None:
-            history = torch.where(
-                fresh.unsqueeze(-1),
-                self.ekf.initial_history(filtered),
-                self.ekf.pushed_history(history, filtered),
-            )
+        history = self.ekf.next_history(history, filtered, fresh.squeeze(-1))
         return mean, cov, filtered, torch.where(fresh, torch.zeros_like(age), age + 1), history
 
 

@@ -191,12 +191,7 @@ def run_filter(
         )
         mean, cov = ekf.start_where(fresh[t], new_mean, new_cov, z[t], current[t])
         if history is not None:
-            filtered = measurement_function(mean, current[t])
-            history = torch.where(
-                fresh[t][..., None, None],
-                ekf.initial_history(filtered),
-                ekf.pushed_history(history, filtered),
-            )
+            history = ekf.next_history(history, measurement_function(mean, current[t]), fresh[t])
         if objective == "supervised":
             nll = gaussian_nll(state_error(mean, data["true_state"][t]), cov)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))

@@ -225,6 +225,18 @@ class EKFTransform(NoiseParameters, Transform):
             return None
         return torch.cat((history[..., 1:, :], filtered[..., None, :2]), dim=-2)
 
+    def next_history(self, history, filtered, fresh):
+        """The history after a step whose filtered readings are ``filtered`` ``(..., 6)``:
+        :meth:`pushed_history`, or :meth:`initial_history` where ``fresh`` ``(...,)`` (an
+        approach began at this step); ``None`` without latency compensation."""
+        if history is None:
+            return None
+        return torch.where(
+            fresh[..., None, None],
+            self.initial_history(filtered),
+            self.pushed_history(history, filtered),
+        )
+
     def initial_history(self, filtered):
         """The history at an episode's start, ``(..., latency_steps, 2)``: the first
         estimate's range and bearing (from its ``filtered`` readings), repeated; ``None``
