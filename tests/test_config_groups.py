@@ -86,6 +86,9 @@ def test_subclasses_keep_their_own_defaults_in_the_shared_places():
         (OffPolicyOptions, "_check_off_policy", {"tau": 0.0}, "tau: must lie in (0, 1]"),
         (TD3Options, "_check_td3", {"policy_delay": 0}, "policy_delay: must be >= 1"),
         (PPOOptions, "_check_ppo", {"activation": "gelu"}, "valid: relu, tanh (got 'gelu')"),
+        (RunOptions, "_check_run", {"fast_update": 1}, "fast_update: must be true or false"),
+        (WorldOptions, "_check_world", {"compensate_latency": "yes"}, "must be true or false"),
+        (PPOOptions, "_check_ppo", {"advantage_every_epoch": None}, "true or false (got None)"),
     ],
 )
 def test_each_group_refuses_its_own_bad_values(group, check, values, message):

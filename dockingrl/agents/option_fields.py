@@ -18,11 +18,14 @@ def refuse(cfg, name: str, why: str) -> None:
     raise ValueError(f"{type(cfg).__name__}.{name}: {why} (got {getattr(cfg, name)!r})")
 
 
-def check_ranges(cfg, counts=(), positive=(), unit=(), fraction=(), non_negative=()) -> None:
+def check_ranges(
+    cfg, counts=(), positive=(), unit=(), fraction=(), non_negative=(), flags=()
+) -> None:
     """Refuse, naming the field and its value: ``counts`` below 1, ``positive`` fields not
     > 0, ``unit`` fields outside (0, 1], ``fraction`` fields outside [0, 1], ``non_negative``
-    ones below 0."""
+    ones below 0, ``flags`` that are not ``True`` or ``False``."""
     for names, ok, text in (
+        (flags, lambda v: isinstance(v, bool), "must be true or false"),
         (counts, lambda v: v >= 1, "must be >= 1"),
         (positive, lambda v: v > 0, "must be > 0"),
         (unit, lambda v: 0 < v <= 1, "must lie in (0, 1]"),

@@ -68,17 +68,13 @@ class PPOOptions:
             unit=("gamma",),
             fraction=("gae_lambda",),
             non_negative=("entropy_coef", "value_coef"),
+            flags=("advantage_every_epoch",),
         )
         if self.steps_per_env < 2:
             raise ValueError(f"{name}.steps_per_env: must be >= 2")
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(
                 f"{name}.lr_schedule: valid: {', '.join(LR_SCHEDULES)} (got {self.lr_schedule!r})"
-            )
-        if not isinstance(self.advantage_every_epoch, bool):
-            raise ValueError(
-                f"{name}.advantage_every_epoch: must be true or false "
-                f"(got {self.advantage_every_epoch!r})"
             )
         if self.activation not in ACTIVATIONS:
             raise ValueError(

@@ -88,6 +88,7 @@ class RunOptions:
                 "select_episodes",
             ),
             non_negative=("checkpoint_every", "time_budget_s"),
+            flags=("fast_update",),
         )
         if self.keep_candidates > 1 and not self.keep_best:
             refuse(
@@ -95,5 +96,3 @@ class RunOptions:
             )
         if not 0.0 <= self.actor_average < 1.0:
             refuse(self, "actor_average", "must lie in [0, 1)")
-        if not isinstance(self.fast_update, bool):
-            refuse(self, "fast_update", "must be true or false")

@@ -84,6 +84,7 @@ class WorldOptions:
                 "lateral_current_fraction",
                 "near_start_fraction",
             ),
+            flags=("compensate_latency",),
         )
         for name, sigma in (
             ("range_noise_scale", "range_noise_fraction"),
@@ -94,7 +95,5 @@ class WorldOptions:
                 raise ValueError(f"{type(self).__name__}.{name}: {problem}")
         if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
-        if not isinstance(self.compensate_latency, bool):
-            refuse(self, "compensate_latency", "must be true or false")
         if self.compensate_latency and self.scenario not in FILTERED_OBSERVATION_KEYS:
             refuse(self, "compensate_latency", f"scenario {self.scenario!r} has no filter")
