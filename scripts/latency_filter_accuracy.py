@@ -2,7 +2,9 @@
 compensation and the innovation gate, on the same recorded rollouts of the managed surge
 controller (200 envs x 400 steps, seed 0): ``evaluate_filter``'s RMSE and consistency.
 
-``PYTHONPATH=. python results/stress/latency_compensation/filter_accuracy.py OUT.json``"""
+    python scripts/latency_filter_accuracy.py \
+        results/stress/latency_compensation/filter_accuracy.json
+"""
 
 import json
 import sys
