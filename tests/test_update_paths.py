@@ -146,3 +146,30 @@ def test_fast_update_ppo_calls_its_modules_directly_with_the_same_gradients():
 
 def test_ppo_accepts_compile_update():
     assert make_config("ppo", "paper", compile_update=True).compile_update
+
+
+def test_td3_actor_loss_reads_the_first_critic_alone_to_torchrls_numbers():
+    from torchrl.objectives import TD3Loss
+
+    ours, ours_state = trained("td3", 6, fast_update=True)
+    spec = make_env("compound", 1, seed=0).action_spec[0]
+    torch.manual_seed(0)
+    cfg = make_config("td3", "paper", hidden=(32, 32), batch_size=64, fast_update=True)
+    stock = make_agent(cfg, OBS, spec, 30.0, "cpu")
+    stock.loss.actor_loss = TD3Loss.actor_loss.__get__(stock.loss)  # both critics evaluated
+    stock.replay_buffer.extend(transitions(500))
+    torch.manual_seed(1)
+    for _ in range(6):
+        stock._off_policy_update()
+    for key, value in stock.loss.state_dict().items():
+        assert torch.equal(ours_state[key], value), key
+    # one critic pass: the first critic's values, of the batch's size
+    calls = []
+    critics = ours.loss._vmap_qvalue_network00
+    ours.loss._vmap_qvalue_network00 = lambda td, params: calls.append(params.batch_size) or (
+        critics(td, params)
+    )
+    loss, meta = ours.loss.actor_loss(ours.replay_buffer.sample())
+    assert calls == [torch.Size([1])] and meta["state_action_value_actor"].shape == (1, 64)
+    _, start = trained("td3", 0, fast_update=True)
+    assert any(not torch.equal(ours_state[k], start[k]) for k in ours_state if "actor" in k)
