@@ -166,9 +166,12 @@ def test_td3_actor_loss_reads_the_first_critic_alone_to_torchrls_numbers():
     # one critic pass: the first critic's values, of the batch's size
     calls = []
     critics = ours.loss._vmap_qvalue_network00
-    ours.loss._vmap_qvalue_network00 = lambda td, params: calls.append(params.batch_size) or (
-        critics(td, params)
-    )
+
+    def counted(td, params):
+        calls.append(params.batch_size)
+        return critics(td, params)
+
+    ours.loss._vmap_qvalue_network00 = counted
     loss, meta = ours.loss.actor_loss(ours.replay_buffer.sample())
     assert calls == [torch.Size([1])] and meta["state_action_value_actor"].shape == (1, 64)
     _, start = trained("td3", 0, fast_update=True)
