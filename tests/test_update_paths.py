@@ -5,7 +5,7 @@ products on a CPU) computes the default update up to rounding."""
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.objectives import SoftUpdate
+from torchrl.objectives import SoftUpdate, TD3Loss
 
 from dockingrl.agents import make_agent
 from dockingrl.agents.config import make_config
@@ -33,15 +33,16 @@ def transitions(n: int) -> TensorDict:
     )
 
 
-def trained(algo: str, updates: int, stock_soft_update: bool = False, **options):
+def trained(algo: str, updates: int, stock=None, **options):
     """The loss state of an agent of ``algo`` (tiny networks) after ``updates`` updates on a
-    fixed buffer, from fixed seeds."""
+    fixed buffer, from fixed seeds; ``stock(agent)``, if given, first puts back one of
+    TorchRL's own pieces in place of dockingrl's."""
     spec = make_env("compound", 1, seed=0).action_spec[0]
     torch.manual_seed(0)
     cfg = make_config(algo, "paper", hidden=(32, 32), batch_size=64, **options)
     agent = make_agent(cfg, OBS, spec, 30.0, "cpu")
-    if stock_soft_update:
-        agent.target_updater = SoftUpdate(agent.loss, tau=cfg.tau)
+    if stock is not None:
+        stock(agent)
     agent.replay_buffer.extend(transitions(500))
     torch.manual_seed(1)
     for _ in range(updates):
@@ -49,10 +50,24 @@ def trained(algo: str, updates: int, stock_soft_update: bool = False, **options)
     return agent, agent.loss.state_dict()
 
 
+def stock_soft_update(agent):
+    agent.target_updater = SoftUpdate(agent.loss, tau=agent.config.tau)
+
+
+def stock_critic_loop(agent):
+    """TorchRL's own loop over the critics."""
+    type(agent.loss).__mro__[1]._make_vmap(agent.loss)
+
+
+def stock_td3_actor_loss(agent):
+    """TorchRL's TD3 actor loss, which evaluates both critics."""
+    agent.loss.actor_loss = TD3Loss.actor_loss.__get__(agent.loss)
+
+
 @pytest.mark.parametrize("algo", ["sac", "td3"])
 def test_the_foreach_soft_update_gives_softupdates_numbers(algo):
     _, ours = trained(algo, 6)
-    _, stock = trained(algo, 6, stock_soft_update=True)
+    _, stock = trained(algo, 6, stock=stock_soft_update)
     targets = [k for k in ours if k.startswith("target_")]
     assert targets
     for key in ours:
@@ -100,17 +115,8 @@ def test_critics_in_turn_give_torchrls_loop_numbers(algo):
     ours, ours_state = trained(algo, 4, fast_update=True)
     attr = "_vmap_qnetworkN0" if algo == "sac" else "_vmap_qvalue_network00"
     assert isinstance(getattr(ours.loss, attr), CriticsInTurn)
-    spec = make_env("compound", 1, seed=0).action_spec[0]
-    torch.manual_seed(0)
-    cfg = make_config(algo, "paper", hidden=(32, 32), batch_size=64, fast_update=True)
-    agent = make_agent(cfg, OBS, spec, 30.0, "cpu")
-    type(agent.loss).__mro__[1]._make_vmap(agent.loss)  # TorchRL's own loop over the critics
+    agent, stock = trained(algo, 4, stock=stock_critic_loop, fast_update=True)
     assert not isinstance(getattr(agent.loss, attr), CriticsInTurn)
-    agent.replay_buffer.extend(transitions(500))
-    torch.manual_seed(1)
-    for _ in range(4):
-        agent._off_policy_update()
-    stock = agent.loss.state_dict()
     for key in ours_state:
         assert torch.equal(ours_state[key], stock[key]), key
     # the module keeps its own parameters between calls
@@ -149,19 +155,9 @@ def test_ppo_accepts_compile_update():
 
 
 def test_td3_actor_loss_reads_the_first_critic_alone_to_torchrls_numbers():
-    from torchrl.objectives import TD3Loss
-
     ours, ours_state = trained("td3", 6, fast_update=True)
-    spec = make_env("compound", 1, seed=0).action_spec[0]
-    torch.manual_seed(0)
-    cfg = make_config("td3", "paper", hidden=(32, 32), batch_size=64, fast_update=True)
-    stock = make_agent(cfg, OBS, spec, 30.0, "cpu")
-    stock.loss.actor_loss = TD3Loss.actor_loss.__get__(stock.loss)  # both critics evaluated
-    stock.replay_buffer.extend(transitions(500))
-    torch.manual_seed(1)
-    for _ in range(6):
-        stock._off_policy_update()
-    for key, value in stock.loss.state_dict().items():
+    _, stock = trained("td3", 6, stock=stock_td3_actor_loss, fast_update=True)
+    for key, value in stock.items():
         assert torch.equal(ours_state[key], value), key
     # one critic pass: the first critic's values, of the batch's size
     calls = []
