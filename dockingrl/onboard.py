@@ -40,7 +40,6 @@ from dockingrl.scenarios import (
     make_filter,
     observation_layout,
 )
-from dockingrl.transforms.ekf import measurement_function
 from dockingrl.transforms.repeat import check_action_repeat
 
 OBS_DIM = 6
@@ -157,7 +156,7 @@ class OnboardStep(nn.Module):
         )
         fresh = age < 0
         mean, cov = self.ekf.start_where(fresh.squeeze(-1), new_mean, new_cov, z, current)
-        filtered = torch.where(fresh, measurement_function(mean, current), new_filtered)
+        filtered = torch.where(fresh, self.ekf.filtered_readings(mean, current), new_filtered)
         history = self.ekf.next_history(history, filtered, fresh.squeeze(-1))
         return mean, cov, filtered, torch.where(fresh, torch.zeros_like(age), age + 1), history
 

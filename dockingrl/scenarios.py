@@ -11,6 +11,7 @@ from torchrl.envs import Compose, Transform, TransformedEnv
 
 from dockingrl.env import DockingConfig, DockingEnv
 from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform, PreviousAction
+from dockingrl.transforms.current_filter import CurrentEstimatingEKF
 from dockingrl.transforms.repeat import check_action_repeat
 
 #: scenario name -> what the policy reads as ``observation`` (number of entries)
@@ -107,17 +108,23 @@ def check_mirror_symmetric(env: TransformedEnv) -> None:
 
 
 def make_filter(
-    config: DockingConfig, *, compensate_latency: bool = False, **ekf_kwargs
+    config: DockingConfig,
+    *,
+    compensate_latency: bool = False,
+    estimate_current: bool = False,
+    **ekf_kwargs,
 ) -> EKFTransform:
     """The EKF transform matched to an env config (step length, action bounds); with
     ``compensate_latency`` it compensates the config's ``usbl_latency`` (``latency_steps``
-    of :class:`EKFTransform`; nothing changes where the latency is 0)."""
+    of :class:`EKFTransform`; nothing changes where the latency is 0); with
+    ``estimate_current`` it is the filter that estimates the current's error
+    (:class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF`, not in the paper)."""
     if compensate_latency:
         ekf_kwargs.setdefault("latency_steps", config.usbl_latency_steps)
     ekf_kwargs.setdefault("dt", config.dt)
     ekf_kwargs.setdefault("action_low", config.action_low)
     ekf_kwargs.setdefault("action_high", config.action_high)
-    return EKFTransform(**ekf_kwargs)
+    return (CurrentEstimatingEKF if estimate_current else EKFTransform)(**ekf_kwargs)
 
 
 def make_env(

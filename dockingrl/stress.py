@@ -23,6 +23,7 @@ def stress_ladder(
     base: DockingConfig | None = None,
     gate: float | None = None,
     compensate_latency: bool = False,
+    estimate_current: bool = False,
     **env_kwargs,
 ) -> dict:
     """Evaluate ``policy`` on ``scenario`` at each ladder level (``episodes`` each, the same
@@ -34,10 +35,13 @@ def stress_ladder(
         compensate_latency: the EKF of a filtered scenario compensates each level's USBL
             latency (:func:`~dockingrl.scenarios.make_filter`); on too where ``env_kwargs``
             (a policy's, trained with ``compensate_latency``) carry it.
+        estimate_current: the EKF of a filtered scenario estimates the current's error
+            (:class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF`).
         env_kwargs: more :func:`~dockingrl.make_env` options (``observe_current``, ...).
 
     Returns:
-        ``{"scenario", "episodes", "seed", "gate", "compensate_latency", "levels": [...]}``,
+        ``{"scenario", "episodes", "seed", "gate", "compensate_latency", "estimate_current",
+        "levels": [...]}``,
         each level with its
         ``name``, ``description``, ``options`` and :func:`~dockingrl.evaluation.evaluate`'s
         metrics (``success_rate``, ``failures``, ...).
@@ -52,6 +56,7 @@ def stress_ladder(
     for name, value, option in (
         ("gate", gate is not None, {"gate": gate}),
         ("compensate_latency", compensate_latency, {"compensate_latency": True}),
+        ("estimate_current", estimate_current, {"estimate_current": True}),
     ):
         if not value:
             continue
@@ -59,6 +64,7 @@ def stress_ladder(
             raise ValueError(f"{name} applies to the filtered scenarios only, not {scenario!r}")
         env_kwargs["ekf_kwargs"] = {**env_kwargs.get("ekf_kwargs", {}), **option}
     compensate_latency = bool(env_kwargs.get("ekf_kwargs", {}).get("compensate_latency"))
+    estimate_current = bool(env_kwargs.get("ekf_kwargs", {}).get("estimate_current"))
     rows = []
     for level in levels:
         metrics = evaluate(
@@ -72,6 +78,7 @@ def stress_ladder(
         "seed": seed,
         "gate": gate,
         "compensate_latency": compensate_latency,
+        "estimate_current": estimate_current,
         "levels": rows,
     }
 
@@ -82,7 +89,8 @@ def stress_table(result: dict, name: str = "policy") -> str:
         f"Stress ladder of {name} on `{result['scenario']}`, {result['episodes']} episodes a "
         f"level, seed {result['seed']}"
         + (f", EKF gate {result['gate']:g}" if result["gate"] else "")
-        + (", EKF compensating the USBL latency" if result.get("compensate_latency") else ""),
+        + (", EKF compensating the USBL latency" if result.get("compensate_latency") else "")
+        + (", EKF estimating the current" if result.get("estimate_current") else ""),
         "",
         "| level | what breaks | success % | timeout | missed funnel | too fast |",
         "|---|---|---|---|---|---|",

@@ -28,6 +28,7 @@ def cmd_stress(args: argparse.Namespace) -> int:
         seed=args.seed,
         gate=args.gate,
         compensate_latency=args.compensate_latency,
+        estimate_current=args.estimate_current,
         device=args.device,
         **options,
     )
@@ -65,6 +66,11 @@ def add_stress_command(sub) -> None:
         "--compensate-latency",
         action="store_true",
         help="the EKF compensates each level's USBL latency (filtered scenarios)",
+    )
+    st.add_argument(
+        "--estimate-current",
+        action="store_true",
+        help="the EKF estimates the current's error (filtered scenarios; not in the paper)",
     )
     st.add_argument("--use-filter", action="store_true", help="managed surge reads the EKF")
     st.add_argument("--out", help="folder for stress.json, stress.md and stress.png")

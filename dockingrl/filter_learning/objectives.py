@@ -14,7 +14,6 @@ from dockingrl.transforms.ekf import (
     ekf_update,
     innovation,
     innovation_covariance,
-    measurement_function,
     measurement_jacobian,
 )
 from dockingrl.transforms.filtering import EKFTransform, arrived_readings
@@ -145,7 +144,7 @@ def run_filter(
     if state is None:
         mean, cov = ekf.initial_estimate(z[0], current[0])
         previous_action, start = action[0], 1
-        history = ekf.initial_history(measurement_function(mean, current[0]))
+        history = ekf.initial_history(ekf.filtered_readings(mean, current[0]))
         means.append(mean)
         covs.append(cov)
     else:
@@ -191,7 +190,7 @@ def run_filter(
         )
         mean, cov = ekf.start_where(fresh[t], new_mean, new_cov, z[t], current[t])
         if history is not None:
-            history = ekf.next_history(history, measurement_function(mean, current[t]), fresh[t])
+            history = ekf.next_history(history, ekf.filtered_readings(mean, current[t]), fresh[t])
         if objective == "supervised":
             nll = gaussian_nll(state_error(mean, data["true_state"][t]), cov)
             losses.append(torch.where(fresh[t], torch.zeros_like(nll), nll))

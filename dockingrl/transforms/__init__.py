@@ -1,6 +1,7 @@
 """The EKF (pure functions and a TorchRL transform) and the compound observation."""
 
 from dockingrl.transforms.command import PreviousAction
+from dockingrl.transforms.compound import CompoundObservation
 from dockingrl.transforms.ekf import (
     ekf_predict,
     ekf_step,
@@ -11,7 +12,7 @@ from dockingrl.transforms.ekf import (
     motion_jacobian,
     motion_model,
 )
-from dockingrl.transforms.filtering import CompoundObservation, EKFTransform
+from dockingrl.transforms.filtering import EKFTransform
 from dockingrl.transforms.noise import MeasurementNoise, NoiseContext, ProcessNoise
 from dockingrl.transforms.repeat import ActionRepeat
 from dockingrl.transforms.shaping import (

@@ -1,6 +1,7 @@
-"""TorchRL transforms of the paper's learning approach (Sec. 3.5, Figure 3): the EKF that
-filters the noisy observation, and the compound observation that concatenates raw and filtered.
-The EKF's noise models ``Q`` and ``R`` are in :mod:`dockingrl.transforms.noise`."""
+"""The TorchRL transform of the paper's EKF (Sec. 3.5, Figure 3), which filters the noisy
+observation. The EKF's noise models ``Q`` and ``R`` are in :mod:`dockingrl.transforms.noise`;
+the compound observation that concatenates raw and filtered is in
+:mod:`dockingrl.transforms.compound`."""
 
 from __future__ import annotations
 
@@ -109,6 +110,9 @@ class EKFTransform(NoiseParameters, Transform):
         >>> env.rollout(5)["next", "filtered_observation"].shape
         torch.Size([8, 5, 6])
     """
+
+    #: entries of the state ``ekf_mean`` (eq. 22)
+    state_dim = STATE_DIM
 
     def __init__(
         self,
@@ -253,6 +257,10 @@ class EKFTransform(NoiseParameters, Transform):
         R = torch.diag_embed(self.measurement_noise(observation[..., 0]))
         return mean, initial_covariance(observation, current, R.to(observation.dtype))
 
+    def filtered_readings(self, mean, current):
+        """The readings ``(..., 6)`` the estimate ``mean`` predicts (eq. 26)."""
+        return measurement_function(mean, current)
+
     def start_where(self, fresh, mean, cov, observation, current):
         """``(mean, cov)`` with the envs where ``fresh`` (shape ``mean.shape[:-1]``) started
         over from :meth:`initial_estimate` of their ``observation``: a new episode's first
@@ -299,7 +307,7 @@ class EKFTransform(NoiseParameters, Transform):
                 reset, previous_mean, tensordict.get(self.cov_key), z, current
             )
             age = torch.where(reset.unsqueeze(-1), age, tensordict.get(self.age_key))
-        filtered = measurement_function(mean, current)
+        filtered = self.filtered_readings(mean, current)
         if self.latency_steps:
             history = self.initial_history(filtered)
             if previous_mean is not None:
@@ -324,9 +332,9 @@ class EKFTransform(NoiseParameters, Transform):
     def _state_specs(self, like) -> dict:
         shape, device, dtype = like.shape[:-1], like.device, like.dtype
         specs = {
-            self.mean_key: Unbounded(shape=(*shape, STATE_DIM), device=device, dtype=dtype),
+            self.mean_key: Unbounded(shape=(*shape, self.state_dim), device=device, dtype=dtype),
             self.cov_key: Unbounded(
-                shape=(*shape, STATE_DIM, STATE_DIM), device=device, dtype=dtype
+                shape=(*shape, self.state_dim, self.state_dim), device=device, dtype=dtype
             ),
             self.age_key: Unbounded(shape=(*shape, 1), device=device, dtype=dtype),
         }
@@ -357,43 +365,3 @@ class EKFTransform(NoiseParameters, Transform):
         state_spec.update(self._state_specs(raw))
         input_spec["full_state_spec"] = state_spec
         return input_spec
-
-
-class CompoundObservation(Transform):
-    """Concatenates observation entries in the given, fixed order (no sorting) into one key.
-
-    The paper's compound observation (Sec. 3.5, Figure 3) is
-    ``CompoundObservation(["observation", "filtered_observation"])``: raw first, then
-    filtered, 12 numbers, written to ``observation`` (which the policy reads). With a single
-    key it renames, as in the ``filtered`` scenario.
-
-    Args:
-        in_keys: entries to concatenate along the last dimension, in this order.
-        out_key: where to write the result (default ``"observation"``, overwritten).
-    """
-
-    def __init__(self, in_keys: Sequence[str], out_key: str = "observation") -> None:
-        if isinstance(in_keys, str) or len(in_keys) == 0:
-            raise ValueError("in_keys must be a non-empty sequence of keys")
-        super().__init__(in_keys=list(in_keys), out_keys=[out_key])
-
-    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        values = [next_tensordict.get(key) for key in self.in_keys]
-        next_tensordict.set(self.out_keys[0], torch.cat(values, dim=-1))
-        return next_tensordict
-
-    forward = _call
-
-    def _reset(
-        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
-    ) -> TensorDictBase:
-        return self._call(tensordict_reset)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        specs = [observation_spec[key] for key in self.in_keys]
-        size = sum(spec.shape[-1] for spec in specs)
-        first = specs[0]
-        observation_spec[self.out_keys[0]] = Unbounded(
-            shape=(*first.shape[:-1], size), device=first.device, dtype=first.dtype
-        )
-        return observation_spec

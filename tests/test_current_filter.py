@@ -1,0 +1,135 @@
+"""The EKF that estimates the current's error: the paper's filter when that error is pinned
+at 0, a smaller position error where the believed current is biased, and the transform's
+state and options."""
+
+import pytest
+import torch
+
+from dockingrl import make_env
+from dockingrl.env import DockingConfig
+from dockingrl.env.levels import level_config
+from dockingrl.filter_learning import record_rollouts
+from dockingrl.filter_learning.consistency import state_error
+from dockingrl.scenarios import make_filter
+from dockingrl.stress import stress_ladder
+from dockingrl.transforms.current_filter import (
+    AUGMENTED_DIM,
+    CurrentEstimatingEKF,
+    augmented_step,
+)
+from dockingrl.transforms.ekf import ekf_step, measurement_function, process_covariance
+
+
+def _batch(n=48, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    f64 = dict(dtype=torch.float64)
+    scale = torch.tensor([10.0, 5.0, 0.5, 0.5, 0.1], **f64)
+    mean = torch.randn(n, 5, generator=g, **f64) * scale + torch.tensor([-20, 0, 0, 0.8, 0], **f64)
+    a = torch.randn(n, 5, 5, generator=g, **f64) * 0.1
+    cov = a @ a.transpose(-1, -2) + 0.01 * torch.eye(5, **f64)
+    action = torch.randn(n, 2, generator=g, **f64) * 0.3
+    current = torch.randn(n, 2, generator=g, **f64) * 0.2
+    z = measurement_function(mean, current) + 0.05 * torch.randn(n, 6, generator=g, **f64)
+    z[:7, :2] += 4.0  # a few outlying USBL fixes for the gate
+    R = (torch.rand(n, 6, generator=g, **f64) + 0.5) * 0.01
+    arrived = torch.rand(n, 6, generator=g) < 0.7
+    late = measurement_function(mean, current)[..., :2] + 0.1
+    return mean, cov, action, z, current, process_covariance(dtype=torch.float64), R, arrived, late
+
+
+@pytest.mark.parametrize("gate", [None, 13.8])
+@pytest.mark.parametrize("late", [False, True])
+def test_with_the_error_pinned_at_zero_it_is_the_papers_filter(gate, late):
+    mean, cov, action, z, current, Q, R, arrived, prediction = _batch()
+    prediction = prediction if late else None
+    kwargs = dict(arrived=arrived, gate=gate, usbl_prediction=prediction)
+    m5, P5, f5 = ekf_step(mean, cov, action, z, current, Q, R, 0.2, diagonal=True, **kwargs)
+    m7 = torch.cat((mean, torch.zeros_like(mean[..., :2])), -1)
+    P7 = torch.zeros(*mean.shape[:-1], AUGMENTED_DIM, AUGMENTED_DIM, dtype=mean.dtype)
+    P7[..., :5, :5] = cov
+    m, P, f = augmented_step(m7, P7, action, z, current, Q, R, 0.2, current_error_std=0.0, **kwargs)
+    torch.testing.assert_close(m[..., :5], m5, rtol=0, atol=1e-12)
+    torch.testing.assert_close(P[..., :5, :5], P5, rtol=0, atol=1e-12)
+    torch.testing.assert_close(f, f5, rtol=0, atol=1e-12)
+    assert m[..., 5:].abs().max() == 0 and P[..., 5:, :].abs().max() == 0
+
+
+def test_a_reading_that_did_not_arrive_leaves_the_estimate_as_predicted():
+    mean, cov, action, z, current, Q, R, _, _ = _batch()
+    m7 = torch.cat((mean, torch.full_like(mean[..., :2], 0.03)), -1)
+    P7 = torch.zeros(*mean.shape[:-1], AUGMENTED_DIM, AUGMENTED_DIM, dtype=mean.dtype)
+    P7[..., :5, :5] = cov
+    P7[..., 5, 5] = P7[..., 6, 6] = 0.01
+    none = torch.zeros(mean.shape[0], 6, dtype=torch.bool)
+    held, held_cov, _ = augmented_step(m7, P7, action, z, current, Q, R, 0.2, arrived=none)
+    other = z + 1.0  # other readings change nothing when none arrived
+    again, again_cov, _ = augmented_step(m7, P7, action, other, current, Q, R, 0.2, arrived=none)
+    assert torch.equal(held, again) and torch.equal(held_cov, again_cov)
+    torch.testing.assert_close(held[..., 5:], m7[..., 5:], rtol=0, atol=0)
+
+
+def _position_rmse(ekf, data):
+    z, action, current = data["observation"], data["action"], data["ocean_current"]
+    fresh, ages = data["step_count"] == 0, data.get("sensor_age", None)
+    mean, cov = ekf.initial_estimate(z[0], current[0])
+    means = [mean]
+    for t in range(1, z.shape[0]):
+        mean, cov, _ = ekf.filter_step(
+            mean,
+            cov,
+            action[t - 1],
+            z[t],
+            current[t],
+            data["step_count"][t] - 1,
+            sensor_age=None if ages is None else ages[t],
+        )
+        mean, cov = ekf.start_where(fresh[t], mean, cov, z[t], current[t])
+        means.append(mean)
+    keep = data["step_count"] >= 10
+    error = state_error(torch.stack(means)[..., :5], data["true_state"])[keep]
+    return float(error[:, :2].pow(2).sum(-1).mean().sqrt())
+
+
+def test_a_biased_current_costs_the_estimating_filter_less():
+    config = DockingConfig(current_knowledge_bias=0.05)
+    data = record_rollouts(48, 300, config=config, seed=1)
+    with torch.no_grad():
+        paper = _position_rmse(make_filter(config), data)
+        estimating = _position_rmse(make_filter(config, estimate_current=True), data)
+    assert estimating < 0.5 * paper, (paper, estimating)
+
+
+def test_the_transform_keeps_a_seven_entry_state_through_resets():
+    config = level_config("L5")
+    env = make_env(
+        "compound",
+        4,
+        seed=0,
+        config=config,
+        ekf_kwargs={"estimate_current": True, "compensate_latency": True},
+    )
+    assert isinstance(env.transform[0], CurrentEstimatingEKF)
+    data = env.rollout(40, break_when_any_done=False)
+    assert data["next", "ekf_mean"].shape == (4, 40, AUGMENTED_DIM)
+    assert data["next", "ekf_cov"].shape == (4, 40, AUGMENTED_DIM, AUGMENTED_DIM)
+    assert data["next", "observation"].shape == (4, 40, 12)
+    assert torch.isfinite(data["next", "observation"]).all()
+    assert env.observation_spec["ekf_mean"].shape == (4, AUGMENTED_DIM)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"current_error_std": -0.1}, "current_error_std"),
+        ({"initial_current_error_std": float("nan")}, "initial_current_error_std"),
+        ({"compile": True}, "compile"),
+    ],
+)
+def test_bad_options_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        CurrentEstimatingEKF(**kwargs)
+
+
+def test_the_stress_ladder_refuses_it_without_a_filter():
+    with pytest.raises(ValueError, match="estimate_current applies to the filtered scenarios"):
+        stress_ladder("managed_surge", "noise", episodes=1, estimate_current=True)
