@@ -40,6 +40,7 @@ from dockingrl.scenarios import (
     make_filter,
     observation_layout,
 )
+from dockingrl.transforms.ekf import STATE_DIM
 from dockingrl.transforms.repeat import check_action_repeat
 
 OBS_DIM = 6
@@ -177,6 +178,9 @@ class OnboardPolicy(nn.Module):
         config: the env config whose step length and command bounds the filter assumes.
         compensate_latency: the filter compensates ``config``'s USBL latency (as the env's
             filter built with ``compensate_latency=True``; docs/realism.md).
+        estimate_current: the filter estimates the current's error (``mean`` ``(B, 7)``,
+            ``cov`` ``(B, 7, 7)``; :class:`~dockingrl.transforms.current_filter.
+            CurrentEstimatingEKF`).
     """
 
     def __init__(
@@ -190,6 +194,7 @@ class OnboardPolicy(nn.Module):
         action_repeat: int = 1,
         config: DockingConfig | None = None,
         compensate_latency: bool = False,
+        estimate_current: bool = False,
     ) -> None:
         super().__init__()
         if scenario not in SCENARIOS:
@@ -198,14 +203,18 @@ class OnboardPolicy(nn.Module):
         self.uses_filter = scenario in FILTERED_OBSERVATION_KEYS
         if filter_params is not None and not self.uses_filter:
             raise ValueError(f"scenario {scenario!r} has no filter: filter_params do not apply")
-        if compensate_latency and not self.uses_filter:
-            raise ValueError(
-                f"scenario {scenario!r} has no filter: compensate_latency does not apply"
-            )
+        for name, on in (
+            ("compensate_latency", compensate_latency),
+            ("estimate_current", estimate_current),
+        ):
+            if on and not self.uses_filter:
+                raise ValueError(f"scenario {scenario!r} has no filter: {name} does not apply")
         config = config or DockingConfig()
-        ekf = (
-            make_filter(config, compensate_latency=compensate_latency) if self.uses_filter else None
-        )
+        ekf = None
+        if self.uses_filter:
+            ekf = make_filter(
+                config, compensate_latency=compensate_latency, estimate_current=estimate_current
+            )
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
         self.step = OnboardStep(
@@ -231,10 +240,8 @@ class OnboardPolicy(nn.Module):
         options = pipeline_options(info["config"])
         check_env_layout(info, info["scenario"], options)
         params = filter_params if filter_params is not None else training_filter(info)
-        compensate = options.pop("ekf_kwargs", {}).get("compensate_latency", False)
-        policy = cls(
-            actor, info["scenario"], filter_params=params, compensate_latency=compensate, **options
-        )
+        filter_options = options.pop("ekf_kwargs", {})
+        policy = cls(actor, info["scenario"], filter_params=params, **filter_options, **options)
         return policy.to(device)
 
     def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:
@@ -246,9 +253,10 @@ class OnboardPolicy(nn.Module):
         history = (
             () if ekf is None or not ekf.latency_steps else (zeros(batch, ekf.latency_steps, 2),)
         )
+        n = STATE_DIM if ekf is None else ekf.state_dim
         return (
-            zeros(batch, 5),
-            torch.eye(5, dtype=like.dtype, device=like.device).expand(batch, 5, 5).clone(),
+            zeros(batch, n),
+            torch.eye(n, dtype=like.dtype, device=like.device).expand(batch, n, n).clone(),
             zeros(batch, 2),
             -torch.ones(batch, 1, dtype=like.dtype, device=like.device),
             *history,

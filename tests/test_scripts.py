@@ -107,3 +107,18 @@ def test_oracle_map_reports_each_chosen_cell(tmp_path, capsys):
     assert "learner  20.0 %" in printed and "learner  80.0 %" in printed  # its cells, not others
     with pytest.raises(SystemExit):
         load_script("oracle_map.py").main(["--out", str(out), "--oc-x-min", "0.5"])
+
+
+def test_current_filter_accuracy_compares_both_filters_at_each_level(tmp_path):
+    out = tmp_path / "accuracy.json"
+    script = load_script("current_filter_accuracy.py")
+    script.main([str(out), "--envs", "16", "--steps", "150", "--levels", "L0,L2"])
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["level"], r["estimate_current"], r["gate"]) for r in rows] == [
+        (level, estimate, gate)
+        for level in ("L0", "L2")
+        for estimate in (False, True)
+        for gate in (None, 13.8)
+    ]
+    at_l2 = {r["estimate_current"]: r["rmse_position_m"] for r in rows if r["level"] == "L2"}
+    assert at_l2[True] < at_l2[False]

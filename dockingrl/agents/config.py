@@ -99,6 +99,7 @@ TRAIN_FIELDS = (
     "action_repeat",
     "fast_update",
     "compensate_latency",
+    "estimate_current",
 )
 
 

@@ -54,6 +54,11 @@ class WorldOptions:
         "instant it describes (not in the paper)",
         default=False,
     )
+    estimate_current: bool = documented(
+        "the EKF of a filtered scenario estimates the error of the current the vehicle "
+        "believes, as two more states (docs/realism.md; not in the paper)",
+        default=False,
+    )
     observe_current: bool = documented(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
@@ -84,7 +89,7 @@ class WorldOptions:
                 "lateral_current_fraction",
                 "near_start_fraction",
             ),
-            flags=("compensate_latency",),
+            flags=("compensate_latency", "estimate_current"),
         )
         for name, sigma in (
             ("range_noise_scale", "range_noise_fraction"),
@@ -95,5 +100,6 @@ class WorldOptions:
                 raise ValueError(f"{type(self).__name__}.{name}: {problem}")
         if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
-        if self.compensate_latency and self.scenario not in FILTERED_OBSERVATION_KEYS:
-            refuse(self, "compensate_latency", f"scenario {self.scenario!r} has no filter")
+        for name in ("compensate_latency", "estimate_current"):
+            if getattr(self, name) and self.scenario not in FILTERED_OBSERVATION_KEYS:
+                refuse(self, name, f"scenario {self.scenario!r} has no filter")

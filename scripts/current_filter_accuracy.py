@@ -1,0 +1,99 @@
+"""The position and heading error of the paper's EKF and of the EKF that estimates the
+current's error, at every ladder level, with and without the chi-square gate, both compensating
+the USBL latency, on the same recorded rollouts of the managed surge controller (200 envs x 400
+steps, seed 0; the first 10 steps of each episode left out, as ``evaluate_filter`` does).
+
+    python scripts/current_filter_accuracy.py results/stress/current_estimation/filter_accuracy.json
+
+Each filter runs through its transform's own ``filter_step`` (what the env runs), so that the
+7-entry state of the estimating filter is handled as in training and evaluation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import torch
+
+from dockingrl.env.levels import LEVELS, level_config
+from dockingrl.evaluation import describe_machine
+from dockingrl.filter_learning import record_rollouts
+from dockingrl.filter_learning.consistency import state_error
+from dockingrl.io import write_json
+from dockingrl.scenarios import make_filter
+from dockingrl.transforms.ekf import STATE_DIM
+
+
+def filtered_means(ekf, data) -> torch.Tensor:
+    """The estimate after each recorded step ``(T, N, state)``, started at each episode's
+    first reading."""
+    z, action, current = data["observation"], data["action"], data["ocean_current"]
+    fresh, ages = data["step_count"] == 0, data.get("sensor_age", None)
+    mean, cov = ekf.initial_estimate(z[0], current[0])
+    history = ekf.initial_history(ekf.filtered_readings(mean, current[0]))
+    means = [mean]
+    for t in range(1, z.shape[0]):
+        mean, cov, _ = ekf.filter_step(
+            mean,
+            cov,
+            action[t - 1],
+            z[t],
+            current[t],
+            data["step_count"][t] - 1,
+            sensor_age=None if ages is None else ages[t],
+            usbl_prediction=ekf.late_fix_prediction(history),
+        )
+        mean, cov = ekf.start_where(fresh[t], mean, cov, z[t], current[t])
+        history = ekf.next_history(history, ekf.filtered_readings(mean, current[t]), fresh[t])
+        means.append(mean)
+    return torch.stack(means)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", help="JSON file to write")
+    parser.add_argument("--envs", type=int, default=200)
+    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--levels", default=",".join(LEVELS))
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    rows, wall = [], {}
+    for level in args.levels.split(","):
+        config = level_config(level)
+        start = time.perf_counter()
+        data = record_rollouts(args.envs, args.steps, config=config, seed=0)
+        keep = data["step_count"] >= 10
+        for estimate in (False, True):
+            for gate in (None, 13.8):
+                ekf = make_filter(
+                    config, gate=gate, compensate_latency=True, estimate_current=estimate
+                )
+                with torch.no_grad():
+                    means = filtered_means(ekf, data)
+                error = state_error(means[..., :STATE_DIM], data["true_state"]).double()[keep]
+                row = {
+                    "level": level,
+                    "estimate_current": estimate,
+                    "gate": gate,
+                    "rmse_position_m": float(error[:, :2].pow(2).sum(-1).mean().sqrt()),
+                    "rmse_heading_rad": float(error[:, 2].pow(2).mean().sqrt()),
+                    "rmse_surge_m_s": float(error[:, 3].pow(2).mean().sqrt()),
+                }
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+        wall[level] = time.perf_counter() - start
+    result = {
+        "command": " ".join(["python", "scripts/current_filter_accuracy.py", *(argv or [])]),
+        "machine": describe_machine("cpu"),
+        "wall_clock_s": wall,
+        "rows": rows,
+    }
+    write_json(args.out, result)
+    return result
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
