@@ -1,5 +1,6 @@
 """The position and heading error of the paper's EKF and of the EKF that estimates the
-current's error, at every ladder level, with and without the chi-square gate, both compensating
+current's error (for several random walks of that error), at every ladder level, with and
+without the chi-square gate, all compensating
 the USBL latency, on the same recorded rollouts of the managed surge controller (200 envs x 400
 steps, seed 0; the first 10 steps of each episode left out, as ``evaluate_filter`` does).
 
@@ -58,6 +59,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--envs", type=int, default=200)
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--levels", default=",".join(LEVELS))
+    parser.add_argument(
+        "--error-stds",
+        default="0.005,0.05,0.1",
+        help="random walks of the estimating filter's current error to compare (m/s a step)",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     rows, wall = [], {}
@@ -66,17 +72,20 @@ def main(argv: list[str] | None = None) -> dict:
         start = time.perf_counter()
         data = record_rollouts(args.envs, args.steps, config=config, seed=0)
         keep = data["step_count"] >= 10
-        for estimate in (False, True):
+        stds = [float(x) for x in args.error_stds.split(",")]
+        for estimate, std in [(False, None)] + [(True, x) for x in stds]:
             for gate in (None, 13.8):
-                ekf = make_filter(
-                    config, gate=gate, compensate_latency=True, estimate_current=estimate
-                )
+                options = {"estimate_current": estimate}
+                if estimate:
+                    options["current_error_std"] = std
+                ekf = make_filter(config, gate=gate, compensate_latency=True, **options)
                 with torch.no_grad():
                     means = filtered_means(ekf, data)
                 error = state_error(means[..., :STATE_DIM], data["true_state"]).double()[keep]
                 row = {
                     "level": level,
                     "estimate_current": estimate,
+                    "current_error_std": std,
                     "gate": gate,
                     "rmse_position_m": float(error[:, :2].pow(2).sum(-1).mean().sqrt()),
                     "rmse_heading_rad": float(error[:, 2].pow(2).mean().sqrt()),

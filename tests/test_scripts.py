@@ -112,13 +112,18 @@ def test_oracle_map_reports_each_chosen_cell(tmp_path, capsys):
 def test_current_filter_accuracy_compares_both_filters_at_each_level(tmp_path):
     out = tmp_path / "accuracy.json"
     script = load_script("current_filter_accuracy.py")
-    script.main([str(out), "--envs", "16", "--steps", "150", "--levels", "L0,L2"])
+    argv = [str(out), "--envs", "16", "--steps", "150", "--levels", "L0,L2", "--error-stds", "0.05"]
+    script.main(argv)
     rows = json.loads(out.read_text())["rows"]
-    assert [(r["level"], r["estimate_current"], r["gate"]) for r in rows] == [
-        (level, estimate, gate)
+    assert [(r["level"], r["current_error_std"], r["gate"]) for r in rows] == [
+        (level, std, gate)
         for level in ("L0", "L2")
-        for estimate in (False, True)
+        for std in (None, 0.05)
         for gate in (None, 13.8)
     ]
-    at_l2 = {r["estimate_current"]: r["rmse_position_m"] for r in rows if r["level"] == "L2"}
+    at_l2 = {
+        r["estimate_current"]: r["rmse_position_m"]
+        for r in rows
+        if r["level"] == "L2" and r["gate"] is None
+    }
     assert at_l2[True] < at_l2[False]
