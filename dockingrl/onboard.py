@@ -73,22 +73,22 @@ class OnboardStep(nn.Module):
     ``(z, current, mean, cov, command, age[, sensor_age[, history]]) -> (command, mean, cov,
     age[, history])``
 
-    with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B, 5)``
-    and ``cov`` ``(B, 5, 5)``, the previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the
-    steps since the approach began; ``age < 0`` marks a new approach (the filter starts from
-    ``z``). Scenarios without a filter pass ``mean`` and ``cov`` through and still count
-    ``age``. ``sensor_age`` ``(B, 3)`` (optional): seconds since the USBL, DVL and IMU
-    readings arrived; only those of age 0 update the filter (absent: every reading is new).
-    ``history`` ``(B, latency_steps, 2)``, with a filter that compensates the USBL latency
-    (and only then): the range and bearing its last estimates predicted (the
-    :class:`~dockingrl.transforms.EKFTransform`'s ``ekf_usbl_history``). With
-    ``action_repeat = k > 1`` (a policy trained with ``--action-repeat k``) the actor's
-    command is taken on the approach's steps ``0, k, 2k, ...`` and held in between, as
-    the training env held it (:class:`~dockingrl.transforms.ActionRepeat`). With
-    ``observe_command`` the actor also reads ``command`` (zeros on an approach's first step),
-    as the training env's :class:`~dockingrl.transforms.PreviousAction` gave it. The command
-    returned is clipped to ``config``'s bounds (eq. 3), as the env applies it.
-    """
+    with ``z`` ``(B, 6)`` readings (eq. 2), ``current`` ``(B, 2)``, the EKF's ``mean`` ``(B,
+    n)`` and ``cov`` ``(B, n, n)`` (``n`` = 5; 7 for the filter that estimates the current), the
+    previous ``command`` ``(B, 2)`` and ``age`` ``(B, 1)``, the steps since the approach began;
+    ``age < 0`` marks a new approach (the filter starts from ``z``). Scenarios without a filter
+    pass ``mean`` and ``cov`` through and still count ``age``. ``sensor_age`` ``(B, 3)``
+    (optional): seconds since the USBL, DVL and IMU readings arrived; only those of age 0 update
+    the filter (absent: every reading is new). ``history`` ``(B, latency_steps, 2)``, with a
+    filter that compensates the USBL latency (and only then): the range and bearing its last
+    estimates predicted (the :class:`~dockingrl.transforms.EKFTransform`'s
+    ``ekf_usbl_history``). With ``action_repeat = k > 1`` (a policy trained with
+    ``--action-repeat k``) the actor's command is taken on the approach's steps ``0, k, 2k,
+    ...`` and held in between, as the training env held it
+    (:class:`~dockingrl.transforms.ActionRepeat`). With ``observe_command`` the actor also reads
+    ``command`` (zeros on an approach's first step), as the training env's
+    :class:`~dockingrl.transforms.PreviousAction` gave it. The command returned is clipped to
+    ``config``'s bounds (eq. 3), as the env applies it."""
 
     def __init__(
         self,

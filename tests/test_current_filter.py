@@ -2,8 +2,11 @@
 at 0, a smaller position error where the believed current is biased, and the transform's
 state and options."""
 
+from functools import partial
+
 import pytest
 import torch
+from torch.autograd.functional import jacobian
 
 from dockingrl import make_env
 from dockingrl.env import DockingConfig
@@ -12,12 +15,20 @@ from dockingrl.filter_learning import record_rollouts
 from dockingrl.filter_learning.consistency import state_error
 from dockingrl.scenarios import make_filter
 from dockingrl.stress import stress_ladder
+from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.current_filter import (
     AUGMENTED_DIM,
     CurrentEstimatingEKF,
+    augmented_measurement_jacobian,
+    augmented_motion_jacobian,
     augmented_step,
 )
-from dockingrl.transforms.ekf import ekf_step, measurement_function, process_covariance
+from dockingrl.transforms.ekf import (
+    ekf_step,
+    measurement_function,
+    motion_model,
+    process_covariance,
+)
 
 
 def _batch(n=48, seed=0):
@@ -96,7 +107,7 @@ def test_a_biased_current_costs_the_estimating_filter_less():
     with torch.no_grad():
         paper = _position_rmse(make_filter(config), data)
         estimating = _position_rmse(make_filter(config, estimate_current=True), data)
-    assert estimating < 0.5 * paper, (paper, estimating)
+    assert estimating < 0.3 * paper, (paper, estimating)
 
 
 def test_the_transform_keeps_a_seven_entry_state_through_resets():
@@ -166,3 +177,91 @@ def test_onboard_policy_and_its_export_estimate_as_the_env_pipeline_does(tmp_pat
         resets += int(done.sum())
         state = (*state[:3], torch.where(done.view(-1, 1), -1.0, state[3]), state[4])
     assert resets > 0
+
+
+def _augmented(mean, cov, action, z, current, R, std=0.05, seed=1):
+    """``mean`` and ``cov`` with a nonzero current error ``b`` and uncertainty in it."""
+    g = torch.Generator().manual_seed(seed)
+    error = 0.05 * torch.randn(mean.shape[0], 2, generator=g, dtype=mean.dtype)
+    m7 = torch.cat((mean, error), -1)
+    a = torch.randn(mean.shape[0], AUGMENTED_DIM, AUGMENTED_DIM, generator=g, dtype=mean.dtype)
+    P7 = 0.05 * a @ a.transpose(-1, -2) + 1e-3 * torch.eye(AUGMENTED_DIM, dtype=mean.dtype)
+    P7[..., :5, :5] += cov
+    return m7, P7
+
+
+def _f7(m7, action, current, dt=0.2):
+    state = motion_model(m7[:5], action, current + m7[5:], dt)
+    return torch.cat((state, m7[5:]))
+
+
+def _h7(m7, current):
+    return measurement_function(m7[:5], current + m7[5:])
+
+
+def test_the_jacobians_are_the_derivatives_of_the_augmented_models():
+    mean, cov, action, z, current, Q, R, _, _ = _batch(8)
+    m7, _ = _augmented(mean, cov, action, z, current, R)
+    F = augmented_motion_jacobian(m7[..., :5], 0.2)
+    H = augmented_measurement_jacobian(m7[..., :5], current + m7[..., 5:])
+    for n in range(8):
+        f = torch.autograd.functional.jacobian(
+            partial(_f7, action=action[n], current=current[n]), m7[n]
+        )
+        h = jacobian(partial(_h7, current=current[n]), m7[n])
+        torch.testing.assert_close(F[n], f, rtol=0, atol=1e-12)
+        torch.testing.assert_close(H[n], h, rtol=0, atol=1e-12)
+
+
+def test_the_update_is_the_joint_ekf_update_with_an_uncertain_current_error():
+    """Against a dense textbook EKF over the 7 entries: predict, one joint update with
+    ``S^-1``, Joseph form; every reading arrived, no gate, no latency."""
+    mean, cov, action, z, current, Q, R, _, _ = _batch(16)
+    m7, P7 = _augmented(mean, cov, action, z, current, R)
+    std = 0.05
+    m, P, filtered = augmented_step(m7, P7, action, z, current, Q, R, 0.2, current_error_std=std)
+    Q7 = torch.zeros(AUGMENTED_DIM, AUGMENTED_DIM, dtype=Q.dtype)
+    Q7[:5, :5], Q7[5, 5], Q7[6, 6] = Q, std**2, std**2
+    I7 = torch.eye(AUGMENTED_DIM, dtype=Q.dtype)
+    for n in range(16):
+        F = torch.autograd.functional.jacobian(
+            partial(_f7, action=action[n], current=current[n]), m7[n]
+        )
+        prior = _f7(m7[n], action[n], current[n])
+        Pp = F @ P7[n] @ F.T + Q7
+        H = jacobian(partial(_h7, current=current[n]), prior)
+        y = z[n] - _h7(prior, current[n])
+        y[1:3] = torch.remainder(y[1:3] + torch.pi, 2 * torch.pi) - torch.pi
+        Rn = torch.diag(R[n])
+        K = Pp @ H.T @ torch.linalg.inv(H @ Pp @ H.T + Rn)
+        x = prior + K @ y
+        x[2] = torch.remainder(x[2] + torch.pi, 2 * torch.pi) - torch.pi
+        Pj = (I7 - K @ H) @ Pp @ (I7 - K @ H).T + K @ Rn @ K.T
+        torch.testing.assert_close(m[n], x, rtol=0, atol=1e-10)
+        torch.testing.assert_close(P[n], Pj, rtol=0, atol=1e-10)
+    torch.testing.assert_close(filtered, measurement_function(m[..., :5], current + m[..., 5:]))
+
+
+def test_the_start_holds_the_surges_share_of_the_current_error():
+    ekf = CurrentEstimatingEKF(initial_current_error_std=0.1).double()
+    mean, cov, action, z, current, Q, R, _, _ = _batch(4)
+    m0, P0 = ekf.initial_estimate(z, current)
+    paper_m, paper_P = EKFTransform().double().initial_estimate(z, current)
+    torch.testing.assert_close(m0[..., :5], paper_m)
+    assert m0[..., 5:].abs().max() == 0
+    heading = torch.stack((torch.cos(m0[..., 2]), torch.sin(m0[..., 2])), -1)
+    torch.testing.assert_close(P0[..., 3, 5:], -0.01 * heading)
+    torch.testing.assert_close(P0[..., 3, 3], paper_P[..., 3, 3] + 0.01)
+    torch.testing.assert_close(P0[..., 5:, 5:], 0.01 * torch.eye(2, dtype=P0.dtype).expand(4, 2, 2))
+    assert bool((torch.linalg.eigvalsh(P0) > 0).all())
+
+
+def test_learned_filter_parameters_and_the_paper_filters_tools_refuse_it():
+    from dockingrl.filter_learning import run_filter
+
+    ekf = CurrentEstimatingEKF()
+    with pytest.raises(ValueError, match="do not apply to the filter that estimates the current"):
+        ekf.load_filter_params("unused.pt")
+    data = record_rollouts(4, 20, config=DockingConfig(), seed=0)
+    with pytest.raises(ValueError, match="run_filter runs the paper's 5-state EKF"):
+        run_filter(ekf, data)

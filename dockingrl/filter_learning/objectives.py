@@ -10,6 +10,7 @@ from tensordict import TensorDict
 
 from dockingrl.env.dynamics import wrap_angle
 from dockingrl.transforms.ekf import (
+    STATE_DIM,
     ekf_predict,
     ekf_update,
     innovation,
@@ -137,6 +138,11 @@ def run_filter(
     """
     if objective is not None and objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
+    if ekf.state_dim != STATE_DIM:
+        raise ValueError(
+            f"run_filter runs the paper's {STATE_DIM}-state EKF; {type(ekf).__name__} keeps "
+            f"{ekf.state_dim} (run it through its filter_step)"
+        )
     z, action = data["observation"], data["action"]
     current, fresh = data["ocean_current"], data["step_count"] == 0
     sensor_age = data.get("sensor_age", None)

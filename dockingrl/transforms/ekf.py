@@ -19,7 +19,6 @@ import math
 import torch
 
 from dockingrl.env.arrays import ops
-from dockingrl.env.realism import SENSOR_OF_ENTRY, SENSORS
 from dockingrl.transforms.ekf_layout import (
     matrix_from_last,
     matrix_to_last,
@@ -47,6 +46,7 @@ from dockingrl.transforms.ekf_model import (
     state_from_observation,
     wrap_heading,
 )
+from dockingrl.transforms.ekf_sequential import SENSOR_ENTRIES, sensor_distances, sequential_update
 
 __all__ = [
     "CHI2_2DOF_999",
@@ -74,11 +74,6 @@ __all__ = [
     "state_from_observation",
 ]
 
-#: the measurement entries of each sensor, in :data:`~dockingrl.env.realism.SENSORS`' order
-#: (USBL: range and bearing; DVL: the two ground velocities; IMU: heading and yaw rate)
-SENSOR_ENTRIES = tuple(
-    tuple(i for i, s in enumerate(SENSOR_OF_ENTRY) if s == sensor) for sensor in range(len(SENSORS))
-)
 #: chi-square quantiles with 2 degrees of freedom (each sensor gives two numbers): a gate at
 #: 13.8 rejects 0.1 % of the readings that follow the model, at 9.21 1 %
 CHI2_2DOF_999 = 13.816
@@ -234,25 +229,6 @@ def _usbl_prediction_to_last(prediction, batch: torch.Size) -> torch.Tensor | No
     return None if prediction is None else vector_to_last(prediction.expand(*batch, 2))
 
 
-def _sensor_distances(P, H, y, noise, full):
-    """Squared Mahalanobis distance of each sensor's two innovations, ``(3, N)``, batch-last,
-    before whitening: ``S_s = H_s P H_s^T + R_s``."""
-    distances = []
-    for i, j in SENSOR_ENTRIES:
-        Ph_i = (P * H[i].unsqueeze(0)).sum(1)
-        Ph_j = (P * H[j].unsqueeze(0)).sum(1)
-        if full:
-            r_ii, r_ij, r_jj = ((noise[a] * noise[b]).sum(0) for a, b in ((i, i), (i, j), (j, j)))
-        else:
-            r_ii, r_ij, r_jj = noise[i] ** 2, torch.zeros_like(noise[i]), noise[j] ** 2
-        s_ii = (H[i] * Ph_i).sum(0) + r_ii
-        s_ij = (H[i] * Ph_j).sum(0) + r_ij
-        s_jj = (H[j] * Ph_j).sum(0) + r_jj
-        det = s_ii * s_jj - s_ij * s_ij
-        distances.append((s_jj * y[i] ** 2 - 2.0 * s_ij * y[i] * y[j] + s_ii * y[j] ** 2) / det)
-    return torch.stack(distances, dim=0)
-
-
 def sensor_innovation_distance(
     mean: torch.Tensor,
     cov: torch.Tensor,
@@ -272,7 +248,7 @@ def sensor_innovation_distance(
     y = innovation(m, vector_to_last(z), cur, dim=0)
     noise, full = _noise_to_last(R, batch, diagonal)
     P = matrix_to_last(cov, batch)
-    return vector_from_last(_sensor_distances(P, H, y, noise, full), batch)
+    return vector_from_last(sensor_distances(P, H, y, noise, full), batch)
 
 
 def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[torch.Tensor, bool]:
@@ -290,35 +266,10 @@ def _noise_to_last(R: torch.Tensor, batch: torch.Size, diagonal: bool) -> tuple[
 
 
 def _update(m, P, z, current, noise, full, arrived=None, gate=None, usbl_prediction=None):
-    xp = ops(m)
     H = measurement_jacobian(m, current, batch_last=True)  # (6, 5, N)
     y = innovation(m, z, current, dim=0, usbl_prediction=usbl_prediction)  # (6, N)
-    if gate is not None:
-        accepted = _sensor_distances(P, H, y, noise, full) <= gate  # (3, N)
-        accepted = accepted[list(SENSOR_OF_ENTRY)]
-        arrived = accepted if arrived is None else arrived & accepted
-    if full:  # whiten with the Cholesky factor L of R: L y' = y, L H' = H
-        L = noise.permute(2, 0, 1)
-        y = torch.linalg.solve_triangular(L, y.T.unsqueeze(-1), upper=False).squeeze(-1).T
-        H = torch.linalg.solve_triangular(L, H.permute(2, 0, 1), upper=False).permute(1, 2, 0)
-    else:
-        y = xp.divide(y, noise)
-        H = xp.divide_rows(H, noise)
-    shift = xp.zeros_like(m)  # x - x_prior: every scalar update linearises at the prior
-    for i in range(MEASUREMENT_DIM):
-        h = H[i]  # (5, N)
-        u = xp.matvec(P, h)  # P h
-        hu = xp.dot(h, u)
-        K = xp.divide(u, hu + 1.0)  # eqs. 31-32 for one unit-variance measurement
-        if arrived is not None:  # a zero gain leaves mean and P exactly as they are
-            K = xp.where(arrived[i], K, xp.zeros_like(K))
-        shift = xp.add_scaled(shift, K, y[i] - xp.dot(h, shift))  # eq. 33
-        # eq. 34 in Joseph form, M P M^T + K K^T with M = I - K h^T, without forming M:
-        # M P = P - K u^T and (M P) M^T = M P - w K^T, w = (M P) h = u - K (h . u);
-        # so P <- P - K (u - K)^T - w K^T
-        w = xp.sub(u, xp.multiply(K, hu))
-        P = xp.rank2_sub(P, K, xp.sub(u, K), w, K)
-    return wrap_heading(xp.add(m, shift), dim=0), symmetric(P, batch_last=True)
+    shift, P = sequential_update(P, H, y, noise, full, arrived, gate)
+    return wrap_heading(ops(m).add(m, shift), dim=0), P
 
 
 def ekf_step(
