@@ -2,6 +2,7 @@
 at 0, a smaller position error where the believed current is biased, and the transform's
 state and options."""
 
+import json
 from functools import partial
 
 import pytest
@@ -265,3 +266,43 @@ def test_learned_filter_parameters_and_the_paper_filters_tools_refuse_it():
     data = record_rollouts(4, 20, config=DockingConfig(), seed=0)
     with pytest.raises(ValueError, match="run_filter runs the paper's 5-state EKF"):
         run_filter(ekf, data)
+
+
+def test_a_run_trained_with_it_carries_it_to_evaluation_and_the_onboard_policy(tmp_path):
+    from helpers import smoke_config
+
+    from dockingrl.agents.saving import pipeline_options
+    from dockingrl.onboard import OnboardPolicy
+    from dockingrl.training import train
+
+    cfg = smoke_config(
+        "sac",
+        "filtered",
+        tmp_path,
+        "estimating",
+        total_steps=128,
+        start_steps=64,
+        frames_per_batch=64,
+        eval_every=128,
+        final_eval_episodes=2,
+        train_level="L5",
+        compensate_latency=True,
+        estimate_current=True,
+        mirror_augment=True,
+    )
+    train(cfg, progress=False)
+    saved = json.loads((tmp_path / "estimating" / "config.json").read_text())
+    assert pipeline_options(saved)["ekf_kwargs"] == {
+        "compensate_latency": True,
+        "estimate_current": True,
+    }
+    onboard = OnboardPolicy.from_file(tmp_path / "estimating" / "policy.pt")
+    assert isinstance(onboard.step.ekf, CurrentEstimatingEKF)
+    assert onboard.initial_state(2)[0].shape == (2, AUGMENTED_DIM)
+
+
+def test_a_scenario_without_a_filter_refuses_it():
+    from dockingrl.agents.config import make_config
+
+    with pytest.raises(ValueError, match="estimate_current.*has no filter"):
+        make_config("sac", "paper", scenario="noise", estimate_current=True)
