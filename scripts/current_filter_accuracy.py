@@ -6,8 +6,8 @@ steps, seed 0; the first 10 steps of each episode left out, as ``evaluate_filter
 
     python scripts/current_filter_accuracy.py results/stress/current_estimation/filter_accuracy.json
 
-Each filter runs through its transform's own ``filter_step`` (what the env runs), so that the
-7-entry state of the estimating filter is handled as in training and evaluation.
+Each filter runs through its transform's own ``filter_step`` (``filter_estimates``: what the
+env runs), so that the 7-entry state of the estimating filter is handled as in training.
 """
 
 from __future__ import annotations
@@ -21,36 +21,11 @@ import torch
 
 from dockingrl.env.levels import LEVELS, level_config
 from dockingrl.evaluation import describe_machine
-from dockingrl.filter_learning import record_rollouts
+from dockingrl.filter_learning import filter_estimates, record_rollouts
 from dockingrl.filter_learning.consistency import state_error
 from dockingrl.io import write_json
 from dockingrl.scenarios import make_filter
 from dockingrl.transforms.ekf import STATE_DIM
-
-
-def filtered_means(ekf, data) -> torch.Tensor:
-    """The estimate after each recorded step ``(T, N, state)``, started at each episode's
-    first reading."""
-    z, action, current = data["observation"], data["action"], data["ocean_current"]
-    fresh, ages = data["step_count"] == 0, data.get("sensor_age", None)
-    mean, cov = ekf.initial_estimate(z[0], current[0])
-    history = ekf.initial_history(ekf.filtered_readings(mean, current[0]))
-    means = [mean]
-    for t in range(1, z.shape[0]):
-        mean, cov, _ = ekf.filter_step(
-            mean,
-            cov,
-            action[t - 1],
-            z[t],
-            current[t],
-            data["step_count"][t] - 1,
-            sensor_age=None if ages is None else ages[t],
-            usbl_prediction=ekf.late_fix_prediction(history),
-        )
-        mean, cov = ekf.start_where(fresh[t], mean, cov, z[t], current[t])
-        history = ekf.next_history(history, ekf.filtered_readings(mean, current[t]), fresh[t])
-        means.append(mean)
-    return torch.stack(means)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -79,8 +54,7 @@ def main(argv: list[str] | None = None) -> dict:
                 if estimate:
                     options["current_error_std"] = std
                 ekf = make_filter(config, gate=gate, compensate_latency=True, **options)
-                with torch.no_grad():
-                    means = filtered_means(ekf, data)
+                means = filter_estimates(ekf, data)
                 error = state_error(means[..., :STATE_DIM], data["true_state"]).double()[keep]
                 row = {
                     "level": level,

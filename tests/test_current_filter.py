@@ -12,7 +12,7 @@ from torch.autograd.functional import jacobian
 from dockingrl import make_env
 from dockingrl.env import DockingConfig
 from dockingrl.env.levels import level_config
-from dockingrl.filter_learning import record_rollouts
+from dockingrl.filter_learning import filter_estimates, record_rollouts
 from dockingrl.filter_learning.consistency import state_error
 from dockingrl.scenarios import make_filter
 from dockingrl.stress import stress_ladder
@@ -81,24 +81,8 @@ def test_a_reading_that_did_not_arrive_leaves_the_estimate_as_predicted():
 
 
 def _position_rmse(ekf, data):
-    z, action, current = data["observation"], data["action"], data["ocean_current"]
-    fresh, ages = data["step_count"] == 0, data.get("sensor_age", None)
-    mean, cov = ekf.initial_estimate(z[0], current[0])
-    means = [mean]
-    for t in range(1, z.shape[0]):
-        mean, cov, _ = ekf.filter_step(
-            mean,
-            cov,
-            action[t - 1],
-            z[t],
-            current[t],
-            data["step_count"][t] - 1,
-            sensor_age=None if ages is None else ages[t],
-        )
-        mean, cov = ekf.start_where(fresh[t], mean, cov, z[t], current[t])
-        means.append(mean)
     keep = data["step_count"] >= 10
-    error = state_error(torch.stack(means)[..., :5], data["true_state"])[keep]
+    error = state_error(filter_estimates(ekf, data)[..., :5], data["true_state"])[keep]
     return float(error[:, :2].pow(2).sum(-1).mean().sqrt())
 
 

@@ -31,6 +31,7 @@ objectives, :mod:`~dockingrl.filter_learning.fit` is the optimisation loop and
 
 from dockingrl.filter_learning.consistency import (
     evaluate_filter,
+    filter_estimates,
     normalized_errors,
     run_averaged_nees_test,
 )
@@ -52,6 +53,7 @@ __all__ = [
     "FilterFit",
     "behaviour_policy",
     "evaluate_filter",
+    "filter_estimates",
     "fit_filter",
     "gaussian_nll",
     "innovation_whiteness",

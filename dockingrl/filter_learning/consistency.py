@@ -13,6 +13,35 @@ from dockingrl.transforms.ekf import MEASUREMENT_DIM
 from dockingrl.transforms.filtering import EKFTransform, arrived_readings
 
 
+def filter_estimates(ekf: EKFTransform, data: TensorDict) -> torch.Tensor:
+    """The estimate after each recorded step, ``(T, N, ekf.state_dim)``, of any
+    :class:`EKFTransform` (the paper's or one with more states, such as
+    :class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF`), run through the
+    transform's own ``filter_step`` as the env runs it, each episode from its first reading;
+    no gradients. :func:`run_filter` is the differentiable run of the paper's filter."""
+    z, action, current = data["observation"], data["action"], data["ocean_current"]
+    fresh, ages = data["step_count"] == 0, data.get("sensor_age", None)
+    with torch.no_grad():
+        mean, cov = ekf.initial_estimate(z[0], current[0])
+        history = ekf.initial_history(ekf.filtered_readings(mean, current[0]))
+        means = [mean]
+        for t in range(1, z.shape[0]):
+            mean, cov, _ = ekf.filter_step(
+                mean,
+                cov,
+                action[t - 1],
+                z[t],
+                current[t],
+                data["step_count"][t] - 1,
+                sensor_age=None if ages is None else ages[t],
+                usbl_prediction=ekf.late_fix_prediction(history),
+            )
+            mean, cov = ekf.start_where(fresh[t], mean, cov, z[t], current[t])
+            history = ekf.next_history(history, ekf.filtered_readings(mean, current[t]), fresh[t])
+            means.append(mean)
+    return torch.stack(means)
+
+
 def _chi2_quantile(p: float, dof: float) -> float:
     """Wilson-Hilferty approximation of the chi-square quantile."""
     z = math.sqrt(2) * _erfinv(2 * p - 1)
