@@ -99,6 +99,12 @@ def augmented_measurement_jacobian(state: torch.Tensor, corrected: torch.Tensor)
     )
 
 
+def augmented_readings(mean: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
+    """Eq. 26 of the estimate ``mean`` ``(..., 7)``: the readings its 5 states predict under the
+    corrected current ``current + b``, ``(..., 6)``."""
+    return measurement_function(mean[..., :STATE_DIM], current + mean[..., STATE_DIM:])
+
+
 def augmented_step(
     mean: torch.Tensor,
     cov: torch.Tensor,
@@ -159,15 +165,15 @@ def augmented_step(
     )
     mean = torch.cat((state, error), dim=-1) + vector_from_last(shift, batch)
     mean = torch.cat((mean[..., :2], wrap_angle(mean[..., 2:3]), mean[..., 3:]), dim=-1)
-    filtered = measurement_function(mean[..., :STATE_DIM], current + mean[..., STATE_DIM:])
-    return mean, matrix_from_last(P, batch), filtered
+    return mean, matrix_from_last(P, batch), augmented_readings(mean, current)
 
 
 class CurrentEstimatingEKF(EKFTransform):
     """:class:`EKFTransform` with the current's error in its state (:func:`augmented_step`):
     ``ekf_mean`` ``(7,)`` and ``ekf_cov`` ``(7, 7)``; ``filtered_observation`` is eq. 26 with
-    the corrected current. Every option of :class:`EKFTransform` (gate, asynchronous readings,
-    latency compensation, learned ``Q`` and ``R``) works the same.
+    the corrected current. The gate, asynchronous readings and latency compensation of
+    :class:`EKFTransform` work the same; learned ``Q`` and ``R`` files, fitted for the paper's
+    filter, are refused.
 
     Keyword Args:
         current_error_std: m/s a step, the random walk of the current's error.
@@ -247,5 +253,5 @@ class CurrentEstimatingEKF(EKFTransform):
         )
 
     def filtered_readings(self, mean, current):
-        """Eq. 26 of the estimate, with the corrected current."""
-        return measurement_function(mean[..., :STATE_DIM], current + mean[..., STATE_DIM:])
+        """Eq. 26 of the estimate, with the corrected current (:func:`augmented_readings`)."""
+        return augmented_readings(mean, current)
