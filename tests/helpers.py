@@ -1,6 +1,6 @@
 """Small builders shared by the tests: an untrained actor, a training config sized for a smoke
-run, an env step that restarts onboard policies, and the repository's root for the files it
-commits."""
+run, an env step that restarts onboard policies, an onboard policy and its exported program
+driven beside the env pipeline, and the repository's root for the files it commits."""
 
 from pathlib import Path
 
@@ -34,6 +34,36 @@ def step_onboard(env, td, command, *policies):
     for policy in policies:
         policy.reset(done)
     return td, done
+
+
+def drive_onboard_beside_env(env, actor, onboard, program, steps=50, plain=None):
+    """Drive ``env`` (4 envs with ``sensor_age``, a filter compensating the latency) for
+    ``steps`` steps with ``onboard``'s commands, asserting at each that they equal ``actor``
+    on the env pipeline's observation and the exported ``program``'s, and restarting the
+    onboard policies where an episode ends. Returns ``(resets, differs)``: how many episodes
+    ended, and whether ``plain`` (another onboard policy fed the same readings) ever commanded
+    otherwise."""
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    td = env.reset()
+    state, resets, differs = onboard.initial_state(4), 0, False
+    others = () if plain is None else (plain,)
+    for _ in range(steps):
+        z, current, ages = td["observation"][..., :6], td["ocean_current"], td["sensor_age"]
+        command = onboard.act(z, current, ages)
+        if plain is not None:
+            differs |= bool((plain.act(z, current, ages) - command).abs().max() > 1e-4)
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            obs = TensorDict({"observation": td["observation"]}, batch_size=[4])
+            torch.testing.assert_close(command, actor(obs)["action"], rtol=1e-5, atol=1e-6)
+        exported, *rest = program(z, current, *state[:4], ages, state[4])
+        torch.testing.assert_close(exported, command, rtol=1e-5, atol=1e-6)
+        state = (rest[0], rest[1], exported, *rest[2:])
+        td, done = step_onboard(env, td, command, onboard, *others)
+        resets += int(done.sum())
+        state = (*state[:3], torch.where(done.view(-1, 1), -1.0, state[3]), state[4])
+    return resets, differs
 
 
 def smoke_config(algo, scenario, tmp_path, run_name, **overrides):

@@ -132,9 +132,7 @@ def test_the_stress_ladder_refuses_it_without_a_filter():
 
 
 def test_onboard_policy_and_its_export_estimate_as_the_env_pipeline_does(tmp_path):
-    from helpers import step_onboard, tiny_actor
-    from tensordict import TensorDict
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from helpers import drive_onboard_beside_env, tiny_actor
 
     from dockingrl.onboard import OnboardPolicy, export_onboard
 
@@ -146,21 +144,8 @@ def test_onboard_policy_and_its_export_estimate_as_the_env_pipeline_does(tmp_pat
         export_onboard(onboard, tmp_path / "onboard.pt2", batch=4, sensor_age=True)
     ).module()
     env = make_env("compound", 4, seed=3, config=config, ekf_kwargs=options)
-    td = env.reset()
-    state, resets = onboard.initial_state(4), 0
-    assert state[0].shape == (4, AUGMENTED_DIM)
-    for _ in range(50):
-        z, current, ages = td["observation"][..., :6], td["ocean_current"], td["sensor_age"]
-        command = onboard.act(z, current, ages)
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            obs = TensorDict({"observation": td["observation"]}, batch_size=[4])
-            torch.testing.assert_close(command, actor(obs)["action"], rtol=1e-5, atol=1e-6)
-        exported, *rest = program(z, current, *state[:4], ages, state[4])
-        torch.testing.assert_close(exported, command, rtol=1e-5, atol=1e-6)
-        state = (rest[0], rest[1], exported, *rest[2:])
-        td, done = step_onboard(env, td, command, onboard)
-        resets += int(done.sum())
-        state = (*state[:3], torch.where(done.view(-1, 1), -1.0, state[3]), state[4])
+    assert onboard.initial_state(4)[0].shape == (4, AUGMENTED_DIM)
+    resets, _ = drive_onboard_beside_env(env, actor, onboard, program)
     assert resets > 0
 
 

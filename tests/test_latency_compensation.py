@@ -232,7 +232,7 @@ def test_bad_latency_steps_are_refused():
 
 
 def test_onboard_policy_and_its_export_compensate_as_the_env_pipeline_does(tmp_path):
-    from helpers import step_onboard, tiny_actor
+    from helpers import drive_onboard_beside_env, tiny_actor
 
     from dockingrl import make_env
     from dockingrl.onboard import OnboardPolicy, export_onboard
@@ -244,21 +244,7 @@ def test_onboard_policy_and_its_export_compensate_as_the_env_pipeline_does(tmp_p
         export_onboard(onboard, tmp_path / "onboard.pt2", batch=4, sensor_age=True)
     ).module()
     env = make_env("compound", 4, seed=3, config=LATE, ekf_kwargs={"compensate_latency": True})
-    td = env.reset()
-    state, resets, differs = onboard.initial_state(4), 0, False
-    for _ in range(50):
-        z, current, ages = td["observation"][..., :6], td["ocean_current"], td["sensor_age"]
-        command = onboard.act(z, current, ages)
-        differs |= bool((plain.act(z, current, ages) - command).abs().max() > 1e-4)
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            obs = TensorDict({"observation": td["observation"]}, batch_size=[4])
-            torch.testing.assert_close(command, actor(obs)["action"], rtol=1e-5, atol=1e-6)
-        exported, *rest = program(z, current, *state[:4], ages, state[4])
-        torch.testing.assert_close(exported, command, rtol=1e-5, atol=1e-6)
-        state = (rest[0], rest[1], exported, *rest[2:])
-        td, done = step_onboard(env, td, command, onboard, plain)
-        resets += int(done.sum())
-        state = (*state[:3], torch.where(done.view(-1, 1), -1.0, state[3]), state[4])
+    resets, differs = drive_onboard_beside_env(env, actor, onboard, program, plain=plain)
     assert resets > 0 and differs
     with pytest.raises(ValueError, match="needs sensor_age=True"):
         export_onboard(onboard, tmp_path / "no_ages.pt2")
