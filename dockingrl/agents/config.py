@@ -100,6 +100,8 @@ TRAIN_FIELDS = (
     "fast_update",
     "compensate_latency",
     "estimate_current",
+    "init_from",
+    "init_replay",
 )
 
 

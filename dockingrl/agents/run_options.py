@@ -63,6 +63,17 @@ class RunOptions:
         "actor, training explores with the live one (0: off; not in the paper)",
         default=0.0,
     )
+    init_from: str = documented(
+        "a run folder whose latest checkpoint's networks and optimiser states start this run: "
+        "fine-tuning a trained agent on another task, e.g. a stress-ladder level; the env "
+        "steps, updates, periodic evaluations and kept actors start anew (not in the paper)",
+        default="",
+    )
+    init_replay: bool = documented(
+        "with init_from: start with that run's replay buffer too, so that the agent goes on "
+        "learning from the old task's transitions beside the new ones (SAC, TD3)",
+        default=False,
+    )
     fast_update: bool = documented(
         "faster gradient updates that round differently from the default (same arithmetic, "
         "other kernels and order): fused Adam steps; on a CPU SAC's and TD3's twin critics "
@@ -94,5 +105,7 @@ class RunOptions:
             refuse(
                 self, "keep_candidates", "chooses among the actors keep_best keeps: set keep_best"
             )
+        if self.init_replay and not self.init_from:
+            refuse(self, "init_replay", "takes the replay buffer of init_from's run: set init_from")
         if not 0.0 <= self.actor_average < 1.0:
             refuse(self, "actor_average", "must lie in [0, 1)")

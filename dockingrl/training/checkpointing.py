@@ -68,15 +68,8 @@ class Checkpoints:
             raise ArtifactError(
                 f"{path / 'state.pt'}: holds a replay buffer this run's agent lacks"
             )
-        try:
-            self.agent.load_state_dict(state["agent"])
-            if state["replay"] is not None:
-                self.agent.replay_buffer.loads(path / "replay")
-            torch.set_rng_state(state["torch_rng"])
-        except (KeyError, IndexError, RuntimeError, TypeError, ValueError) as exc:
-            raise ArtifactError(
-                f"{path / 'state.pt'}: does not fit this run ({first_line(exc)})"
-            ) from None
+        self._load_agent(path, state, replay=True)
+        torch.set_rng_state(state["torch_rng"])
         self.frames, self.episodes, self.elapsed = (
             state["frames"],
             state["episodes"],
@@ -87,6 +80,57 @@ class Checkpoints:
         self.candidates = state.get("candidates", [best] if best is not None else [])
         del self.candidates[self.cfg.keep_candidates :]
         return True
+
+    def _load_agent(self, path: Path, state: dict, replay: bool) -> None:
+        """Put the agent of the checkpoint ``path`` (its ``state``, read) into this run's, with
+        its replay buffer where ``replay`` and it has one; ArtifactError where it does not fit."""
+        from dockingrl.io import ArtifactError, first_line
+
+        try:
+            self.agent.load_state_dict(state["agent"])
+            if replay and state["replay"] is not None:
+                self.agent.replay_buffer.loads(path / "replay")
+        except (KeyError, IndexError, RuntimeError, TypeError, ValueError) as exc:
+            raise ArtifactError(
+                f"{path / 'state.pt'}: does not fit this run ({first_line(exc)})"
+            ) from None
+
+    def warm_start(self) -> dict:
+        """Start a new run from the agent of ``init_from``'s latest checkpoint: its networks,
+        optimiser states (and with ``init_replay`` its replay buffer); this run's counters,
+        RNG and kept actors stay new. Returns what it started from (``{"run", "frames"}``)."""
+        import json
+
+        from dockingrl.checkpoint import latest_checkpoint, read_state
+        from dockingrl.io import ArtifactError
+
+        cfg = self.cfg
+        source = Path(cfg.init_from)
+        try:
+            algo = json.loads((source / "config.json").read_text())["algo"]
+        except (OSError, ValueError, KeyError, TypeError):
+            raise ArtifactError(f"init_from {source}: no run folder (no readable config.json)")
+        if algo != cfg.algo:
+            raise ValueError(f"init_from {source}: a {algo} run, not {cfg.algo}")
+        path = latest_checkpoint(source / "checkpoints")
+        if path is None:
+            raise ArtifactError(f"init_from {source}: the run holds no checkpoint")
+        state = read_state(path)
+        if cfg.init_replay and (self.agent.replay_buffer is None or state["replay"] is None):
+            raise ValueError(f"init_replay: {path} holds no replay buffer to start from")
+        average = self.agent.average
+        if average is not None and "averaged" not in state["agent"]:
+            # this run averages its actor, the other did not: the average starts at its actor
+            self.agent.average = None
+            try:
+                self._load_agent(path, state, replay=cfg.init_replay)
+            finally:
+                self.agent.average = average
+            average.module.load_state_dict(self.agent.actor.state_dict())
+        else:
+            self._load_agent(path, state, replay=cfg.init_replay)
+        self.agent.updates = 0
+        return {"run": str(source), "frames": state["frames"]}
 
     def checkpoint_due(self) -> bool:
         """Whether the run has reached its next checkpoint (then the one after is set)."""

@@ -92,9 +92,12 @@ def train(
 
 def _train_locked(cfg, run_dir, resume, progress, command, overrides) -> dict:
     trainer = Trainer(cfg, run_dir, progress=progress, command=command)
+    # a run that stopped before its first checkpoint starts again from its config
+    restored = resume is not None and trainer.load_checkpoint()
+    if not restored and cfg.init_from:
+        trainer.warm_start()
     if resume is not None:
-        # a run that stopped before its first checkpoint starts again from its config
-        if trainer.load_checkpoint() and "total_steps" in overrides:
+        if restored and "total_steps" in overrides:
             # the last batch may overshoot the total: only a new total below it is refused
             if cfg.total_steps < trainer.frames:
                 raise ValueError(

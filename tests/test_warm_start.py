@@ -1,0 +1,101 @@
+"""``init_from`` / ``init_replay``: a run that starts from another run's trained agent (a
+fine-tune on another level of the stress ladder), and what it refuses."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from helpers import tiny_config
+
+from dockingrl import training
+from dockingrl.checkpoint import latest_checkpoint, read_state
+from dockingrl.io import ArtifactError
+from dockingrl.training.trainer import Trainer
+
+
+def _params(state: dict) -> dict:
+    return {k: v.clone() for k, v in state["loss"].items() if torch.is_tensor(v)}
+
+
+def test_sac_starts_from_the_other_runs_networks_and_replay(tiny_runs, tmp_path, short_episodes):
+    _, _, source = tiny_runs("sac", "compound")
+    saved = read_state(latest_checkpoint(source / "checkpoints"))
+    cfg = tiny_config(
+        "sac", "compound", tmp_path, init_from=str(source), init_replay=True, train_level="L5"
+    )
+    trainer = Trainer(cfg, tmp_path / "fine", progress=False)
+    fresh = _params(trainer.agent.state_dict())
+    started = trainer.warm_start()
+    assert started == {"run": str(source), "frames": saved["frames"]}
+    loaded = _params(trainer.agent.state_dict())
+    differs = [k for k in loaded if not torch.equal(loaded[k], fresh[k])]
+    assert differs, "the warm start left the fresh networks as they were"
+    for k, v in _params(saved["agent"]).items():
+        assert torch.equal(loaded[k], v), k
+    assert len(trainer.agent.replay_buffer) == saved["frames"]
+    assert (trainer.frames, trainer.agent.updates, trainer.candidates) == (0, 0, [])
+
+
+def test_without_init_replay_the_buffer_starts_empty(tiny_runs, tmp_path, short_episodes):
+    _, _, source = tiny_runs("sac", "compound")
+    cfg = tiny_config("sac", "compound", tmp_path, init_from=str(source))
+    trainer = Trainer(cfg, tmp_path / "fine", progress=False)
+    trainer.warm_start()
+    assert len(trainer.agent.replay_buffer) == 0
+
+
+def test_a_fine_tune_trains_and_resumes_from_its_own_checkpoint(
+    tiny_runs, tmp_path, short_episodes
+):
+    _, _, source = tiny_runs("sac", "compound")
+    cfg = tiny_config(
+        "sac", "compound", tmp_path, init_from=str(source), init_replay=True, start_steps=0
+    )
+    first = training.train(cfg, progress=False)["summary"]
+    run = tmp_path / "sac_compound"
+    assert json.loads((run / "config.json").read_text())["init_from"] == str(source)
+    assert first["frames"] >= cfg.total_steps and first["updates"] > 0
+    again = training.train(
+        None, resume=run, progress=False, overrides={"total_steps": cfg.total_steps + 200}
+    )["summary"]
+    # resumed from its own checkpoint: the update count goes on (a second warm start would
+    # have reset it to zero)
+    assert again["updates"] > first["updates"]
+    assert again["frames"] >= cfg.total_steps + 200
+
+
+def test_ppo_starts_from_a_ppo_run(tiny_runs, tmp_path, short_episodes):
+    _, _, source = tiny_runs("ppo", "noise")
+    saved = read_state(latest_checkpoint(source / "checkpoints"))
+    cfg = tiny_config("ppo", "noise", tmp_path, init_from=str(source))
+    trainer = Trainer(cfg, tmp_path / "fine", progress=False)
+    trainer.warm_start()
+    for k, v in _params(saved["agent"]).items():
+        assert torch.equal(_params(trainer.agent.state_dict())[k], v), k
+
+
+def test_refusals(tiny_runs, tmp_path, short_episodes):
+    _, _, sac_run = tiny_runs("sac", "compound")
+    _, _, ppo_run = tiny_runs("ppo", "noise")
+    with pytest.raises(ValueError, match="init_replay.*set init_from"):
+        tiny_config("sac", "compound", tmp_path, init_replay=True).validate()
+    cases = [
+        (tiny_config("sac", "compound", tmp_path, init_from=str(ppo_run)), ValueError, "a ppo run, not sac"),
+        (tiny_config("sac", "compound", tmp_path, init_from=str(tmp_path)), ArtifactError, "no run folder"),
+        (tiny_config("ppo", "noise", tmp_path, init_from=str(ppo_run), init_replay=True), ValueError, "no replay buffer"),
+    ]
+    for cfg, error, message in cases:
+        trainer = Trainer(cfg, tmp_path / "fine", progress=False)
+        with pytest.raises(error, match=message):
+            trainer.warm_start()
+    empty = tmp_path / "no_checkpoint"
+    empty.mkdir()
+    (empty / "config.json").write_text(json.dumps({"algo": "sac"}))
+    trainer = Trainer(tiny_config("sac", "compound", tmp_path, init_from=str(empty)), tmp_path / "f", progress=False)
+    with pytest.raises(ArtifactError, match="holds no checkpoint"):
+        trainer.warm_start()
+    wider = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), hidden=(48, 48))
+    with pytest.raises(ArtifactError, match="does not fit this run"):
+        Trainer(wider, tmp_path / "w", progress=False).warm_start()
