@@ -109,3 +109,20 @@ def test_eval_cli_on_cuda(tmp_path):
     assert metrics["episodes"] == 64 and "GPU" in metrics["machine"]
     for name in ("success_map.json", "success_map.png", "trajectories.json", "trajectories.png"):
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_the_harshest_stress_level_with_the_estimating_filter_steps_on_cuda():
+    from dockingrl.env.levels import level_config
+
+    env = make_env(
+        "compound",
+        256,
+        seed=0,
+        device="cuda",
+        config=level_config("L5"),
+        ekf_kwargs={"compensate_latency": True, "estimate_current": True},
+    )
+    data = env.rollout(60, break_when_any_done=False)
+    obs = data["next", "observation"]
+    assert obs.is_cuda and bool(torch.isfinite(obs).all())
+    assert bool((data["next", "sensor_age"] > 0).any())
