@@ -230,10 +230,14 @@ class OnboardPolicy(nn.Module):
         *,
         filter_params: str | Path | None = None,
         device: torch.device | str = "cpu",
+        config: DockingConfig | None = None,
     ) -> OnboardPolicy:
         """Load a policy saved by training (``policy.pt``); its scenario, its
         ``--observe-current``, ``--observe-command`` and ``--action-repeat`` and, unless
-        ``filter_params`` is given, its training ``--filter-params`` come with it."""
+        ``filter_params`` is given, its training ``--filter-params`` come with it.
+        ``config`` describes the vehicle (default: the paper's): with a policy trained with
+        ``--compensate-latency`` the filter compensates ``config``'s USBL latency, not the
+        latency of the level the policy was trained at."""
         from dockingrl.agents.saving import load_policy, pipeline_options, training_filter
 
         actor, info = load_policy(path, device=device)
@@ -241,7 +245,14 @@ class OnboardPolicy(nn.Module):
         check_env_layout(info, info["scenario"], options)
         params = filter_params if filter_params is not None else training_filter(info)
         filter_options = options.pop("ekf_kwargs", {})
-        policy = cls(actor, info["scenario"], filter_params=params, **filter_options, **options)
+        policy = cls(
+            actor,
+            info["scenario"],
+            filter_params=params,
+            config=config,
+            **filter_options,
+            **options,
+        )
         return policy.to(device)
 
     def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:

@@ -632,6 +632,8 @@ def test_compensate_latency_reaches_the_training_filter_and_the_saved_policy(
     result = train(cfg, progress=False)
     path = Path(result["run_dir"]) / "policy.pt"
     assert OnboardPolicy.from_file(path).step.ekf.latency_steps == 0  # L0: no latency
+    vehicle = OnboardPolicy.from_file(path, config=kwargs["config"])  # the vehicle's latency
+    assert vehicle.step.ekf.latency_steps == kwargs["config"].usbl_latency_steps
     policy, _, scenario, options, _ = load_policy(str(path))
     ladder = stress_ladder(policy, scenario, episodes=4, levels=("L1",), **options)
     assert ladder["compensate_latency"] is True
