@@ -181,6 +181,7 @@ class OnboardPolicy(nn.Module):
         estimate_current: the filter estimates the current's error (``mean`` ``(B, 7)``,
             ``cov`` ``(B, 7, 7)``; :class:`~dockingrl.transforms.current_filter.
             CurrentEstimatingEKF`).
+        gate: the filter's chi-square innovation gate (``--filter-gate``; ``None``: none).
     """
 
     def __init__(
@@ -195,6 +196,7 @@ class OnboardPolicy(nn.Module):
         config: DockingConfig | None = None,
         compensate_latency: bool = False,
         estimate_current: bool = False,
+        gate: float | None = None,
     ) -> None:
         super().__init__()
         if scenario not in SCENARIOS:
@@ -206,6 +208,7 @@ class OnboardPolicy(nn.Module):
         for name, on in (
             ("compensate_latency", compensate_latency),
             ("estimate_current", estimate_current),
+            ("gate", gate is not None),
         ):
             if on and not self.uses_filter:
                 raise ValueError(f"scenario {scenario!r} has no filter: {name} does not apply")
@@ -213,7 +216,10 @@ class OnboardPolicy(nn.Module):
         ekf = None
         if self.uses_filter:
             ekf = make_filter(
-                config, compensate_latency=compensate_latency, estimate_current=estimate_current
+                config,
+                compensate_latency=compensate_latency,
+                estimate_current=estimate_current,
+                gate=gate,
             )
         if filter_params is not None:
             ekf.load_filter_params(filter_params)

@@ -31,7 +31,8 @@ def stress_ladder(
 
     Keyword Args:
         base: the config each level starts from (the paper's by default).
-        gate: the EKF's chi-square innovation gate in filtered scenarios (``None``: none).
+        gate: the EKF's chi-square innovation gate in filtered scenarios (``None``: none, or
+            the gate that ``env_kwargs`` (a policy's, trained with ``filter_gate``) carry).
         compensate_latency: the EKF of a filtered scenario compensates each level's USBL
             latency (:func:`~dockingrl.scenarios.make_filter`); on too where ``env_kwargs``
             (a policy's, trained with ``compensate_latency``) carry it.
@@ -63,6 +64,7 @@ def stress_ladder(
         if scenario not in FILTERED_OBSERVATION_KEYS:
             raise ValueError(f"{name} applies to the filtered scenarios only, not {scenario!r}")
         env_kwargs["ekf_kwargs"] = {**env_kwargs.get("ekf_kwargs", {}), **option}
+    gate = env_kwargs.get("ekf_kwargs", {}).get("gate")
     compensate_latency = bool(env_kwargs.get("ekf_kwargs", {}).get("compensate_latency"))
     estimate_current = bool(env_kwargs.get("ekf_kwargs", {}).get("estimate_current"))
     rows = []

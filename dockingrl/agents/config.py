@@ -100,6 +100,7 @@ TRAIN_FIELDS = (
     "fast_update",
     "compensate_latency",
     "estimate_current",
+    "filter_gate",
     "init_from",
     "init_replay",
 )

@@ -42,12 +42,15 @@ def pipeline_options(config: Mapping) -> dict:
     """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (as a
     dict, e.g. a saved policy's ``config``) fixes for whatever runs its policy:
     ``observe_current``, ``observe_command``, ``action_repeat`` and the filter's
-    ``compensate_latency`` and ``estimate_current`` (as ``ekf_kwargs``), where they differ
+    ``compensate_latency``, ``estimate_current`` and ``filter_gate`` (as ``ekf_kwargs``), where
+    they differ
     from the paper's. Training,
     ``dockingrl eval --policy``, ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take
     them from here."""
     options: dict = {}
     ekf_kwargs = {k: True for k in ("compensate_latency", "estimate_current") if config.get(k)}
+    if config.get("filter_gate"):
+        ekf_kwargs["gate"] = float(config["filter_gate"])
     if ekf_kwargs:
         options["ekf_kwargs"] = ekf_kwargs
     if config.get("observe_current"):

@@ -4,6 +4,7 @@ what the policy's observation appends."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from dockingrl.agents.option_fields import check_ranges, documented, refuse
@@ -59,6 +60,13 @@ class WorldOptions:
         "believes, as two more states (docs/realism.md; not in the paper)",
         default=False,
     )
+    filter_gate: float = documented(
+        "chi-square threshold of the EKF's innovation gate in a filtered scenario: a sensor's "
+        "two readings are left out when their innovation's squared Mahalanobis distance "
+        "exceeds it, so that a USBL outlier leaves the estimate as predicted (13.816: the "
+        "99.9th percentile at 2 degrees of freedom; 0: no gate, the paper's; docs/realism.md)",
+        default=0.0,
+    )
     observe_current: bool = documented(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
@@ -100,6 +108,8 @@ class WorldOptions:
                 raise ValueError(f"{type(self).__name__}.{name}: {problem}")
         if self.filter_params and self.scenario not in FILTERED_OBSERVATION_KEYS:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
-        for name in ("compensate_latency", "estimate_current"):
+        if not (0.0 <= self.filter_gate < math.inf):
+            refuse(self, "filter_gate", "must be a chi-square threshold > 0, or 0 for no gate")
+        for name in ("compensate_latency", "estimate_current", "filter_gate"):
             if getattr(self, name) and self.scenario not in FILTERED_OBSERVATION_KEYS:
                 refuse(self, name, f"scenario {self.scenario!r} has no filter")
