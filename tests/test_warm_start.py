@@ -79,8 +79,8 @@ def test_ppo_starts_from_a_ppo_run(tiny_runs, tmp_path, short_episodes):
 def test_refusals(tiny_runs, tmp_path, short_episodes):
     _, _, sac_run = tiny_runs("sac", "compound")
     _, _, ppo_run = tiny_runs("ppo", "noise")
-    with pytest.raises(ValueError, match="init_replay.*set init_from"):
-        tiny_config("sac", "compound", tmp_path, init_replay=True).validate()
+    with pytest.raises(ValueError, match="init_replay takes .* give --init-from RUN_DIR"):
+        training.train(tiny_config("sac", "compound", tmp_path, init_replay=True), progress=False)
     cases = [
         (tiny_config("sac", "compound", tmp_path, init_from=str(ppo_run)), ValueError, "a ppo run, not sac"),
         (tiny_config("sac", "compound", tmp_path, init_from=str(tmp_path)), ArtifactError, "no run folder"),

@@ -105,7 +105,5 @@ class RunOptions:
             refuse(
                 self, "keep_candidates", "chooses among the actors keep_best keeps: set keep_best"
             )
-        if self.init_replay and not self.init_from:
-            refuse(self, "init_replay", "takes the replay buffer of init_from's run: set init_from")
         if not 0.0 <= self.actor_average < 1.0:
             refuse(self, "actor_average", "must lie in [0, 1)")

@@ -80,6 +80,11 @@ def train(
         raise ValueError("overrides apply to a resumed run only; set them in cfg")
     else:
         cfg.validate()
+        if cfg.init_replay and not cfg.init_from:
+            raise ValueError(
+                "init_replay takes the replay buffer of the run that init_from names: "
+                "give --init-from RUN_DIR"
+            )
         run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
         run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
