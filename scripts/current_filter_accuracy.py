@@ -2,7 +2,8 @@
 current's error (for several random walks of that error), at every ladder level, with and
 without the chi-square gate, all compensating
 the USBL latency, on the same recorded rollouts of the managed surge controller (200 envs x 400
-steps, seed 0; the first 10 steps of each episode left out, as ``evaluate_filter`` does).
+steps, seed 0; the first 10 steps of each episode left out, as ``evaluate_filter`` does). The
+position error is also given within ``--near`` m of the station, where a policy lines up.
 
     python scripts/current_filter_accuracy.py results/stress/current_estimation/filter_accuracy.json
 
@@ -34,6 +35,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--envs", type=int, default=200)
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--levels", default=",".join(LEVELS))
+    parser.add_argument("--near", type=float, default=6.0, help="range (m) of the near split")
     parser.add_argument(
         "--error-stds",
         default="0.005,0.05,0.1",
@@ -47,6 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
         start = time.perf_counter()
         data = record_rollouts(args.envs, args.steps, config=config, seed=0)
         keep = data["step_count"] >= 10
+        near = keep & (data["true_state"][..., :2].norm(dim=-1) < args.near)
         stds = [float(x) for x in args.error_stds.split(",")]
         for estimate, std in [(False, None)] + [(True, x) for x in stds]:
             for gate in (None, 13.8):
@@ -55,13 +58,16 @@ def main(argv: list[str] | None = None) -> dict:
                     options["current_error_std"] = std
                 ekf = make_filter(config, gate=gate, compensate_latency=True, **options)
                 means = filter_estimates(ekf, data)
-                error = state_error(means[..., :STATE_DIM], data["true_state"]).double()[keep]
+                full = state_error(means[..., :STATE_DIM], data["true_state"]).double()
+                error = full[keep]
                 row = {
                     "level": level,
                     "estimate_current": estimate,
                     "current_error_std": std,
                     "gate": gate,
                     "rmse_position_m": float(error[:, :2].pow(2).sum(-1).mean().sqrt()),
+                    "rmse_position_near_m": float(full[near][:, :2].pow(2).sum(-1).mean().sqrt()),
+                    "near_samples": int(near.sum()),
                     "rmse_heading_rad": float(error[:, 2].pow(2).mean().sqrt()),
                     "rmse_surge_m_s": float(error[:, 3].pow(2).mean().sqrt()),
                 }
