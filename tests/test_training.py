@@ -777,3 +777,25 @@ def test_eval_rebuilds_the_training_world_of_a_mismatch_run(tmp_path, capsys, sh
     assert again["total_reward"] == same["total_reward"]
     onboard = OnboardPolicy.from_file(policy)
     torch.testing.assert_close(onboard.step.ekf.measurement_noise.log_std, ekf_log_std)
+
+
+def test_the_summary_names_the_code_a_run_started_on_and_what_ran_it_before(
+    tmp_path, short_episodes, monkeypatch
+):
+    from dockingrl.training import trainer as trainer_module
+
+    first_code, later_code = ({"commit": c * 40, "dirty": False} for c in "ab")
+    versions = iter([first_code, later_code])
+    # read once per process, when training starts: a third read would raise StopIteration
+    monkeypatch.setattr(trainer_module, "code_version", lambda: next(versions))
+    cfg = tiny_config("sac", "compound", tmp_path)
+    first = train(cfg, progress=False)["summary"]
+    assert first["code"] == first_code and "code_history" not in first
+    again = train(
+        None,
+        resume=tmp_path / "sac_compound",
+        progress=False,
+        overrides={"total_steps": cfg.total_steps + 200},
+    )["summary"]
+    assert again["code"] == later_code
+    assert again["code_history"] == [first_code, later_code]

@@ -43,6 +43,7 @@ class Checkpoints:
             "torch_rng": torch.get_rng_state(),
             "best": self.best,
             "candidates": self.candidates,
+            "codes": self.codes,
         }
         write_state(tmp, state)
         shutil.rmtree(path, ignore_errors=True)
@@ -76,6 +77,8 @@ class Checkpoints:
             state["elapsed"],
         )
         self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
+        earlier = [c for c in state.get("codes", []) if c != self.code]
+        self.codes = [*earlier, self.code]
         best = state.get("best")
         self.candidates = state.get("candidates", [best] if best is not None else [])
         del self.candidates[self.cfg.keep_candidates :]

@@ -45,6 +45,10 @@ class Trainer(Checkpoints, Selection):
         self.last_success = float("nan")
         self.candidates: list[dict] = []
         self.run_id = run_dir.name.replace("__", "-")[-60:]
+        #: the source this process trains with (read now: the checkout may move on during a
+        #: long run) and, from a resumed checkpoint, what the run's earlier processes ran
+        self.code = code_version()
+        self.codes = [self.code]
         self.env_kwargs = env_kwargs(cfg)
         self.obs_dim, self.action_spec, self.max_dist = env_shapes(cfg, self.env_kwargs)
         torch.manual_seed(cfg.seed)
@@ -160,7 +164,8 @@ class Trainer(Checkpoints, Selection):
             **chosen,
             "machine": describe_machine(cfg.device),
             "command": self.command,
-            "code": code_version(),
+            "code": self.code,
+            **({"code_history": self.codes} if len(self.codes) > 1 else {}),
         }
         write_json(self.run_dir / "summary.json", summary)
         logger.log(
