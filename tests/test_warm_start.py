@@ -4,6 +4,8 @@ fine-tune on another level of the stress ladder), and what it refuses."""
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -90,12 +92,35 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
         trainer = Trainer(cfg, tmp_path / "fine", progress=False)
         with pytest.raises(error, match=message):
             trainer.warm_start()
+    unfinished = tmp_path / "unfinished"
+    shutil.copytree(sac_run, unfinished)
+    (unfinished / "summary.json").unlink()
+    trainer = Trainer(
+        tiny_config("sac", "compound", tmp_path, init_from=str(unfinished)), tmp_path / "u", progress=False
+    )
+    with pytest.raises(ValueError, match="has not finished .*dockingrl train --resume"):
+        trainer.warm_start()
     empty = tmp_path / "no_checkpoint"
     empty.mkdir()
     (empty / "config.json").write_text(json.dumps({"algo": "sac"}))
+    (empty / "summary.json").write_text("{}")
     trainer = Trainer(tiny_config("sac", "compound", tmp_path, init_from=str(empty)), tmp_path / "f", progress=False)
     with pytest.raises(ArtifactError, match="holds no checkpoint"):
         trainer.warm_start()
     wider = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), hidden=(48, 48))
     with pytest.raises(ArtifactError, match="does not fit this run"):
         Trainer(wider, tmp_path / "w", progress=False).warm_start()
+
+
+def test_the_robust_ft_grid_fine_tunes_each_nominal_seed(tmp_path, monkeypatch):
+    from dockingrl.grid import load_grid
+
+    monkeypatch.chdir(tmp_path)
+    grid = load_grid("robust_ft")
+    assert [t.name for t in grid.trials] == [
+        f"sac-robust-ft__filtered__s{seed}" for seed in range(3)
+    ]
+    for trial in grid.trials:
+        cfg = trial.config(grid.out, 1)
+        assert Path(cfg.init_from) == tmp_path / "runs" / "table6" / f"sac__filtered__s{trial.seed}"
+        assert cfg.init_replay and cfg.train_level == "L5" and cfg.filter_gate > 0

@@ -77,6 +77,8 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
             overrides: {total_steps: 500000}
             estimate_s: 7000          # expected seconds of one trial on one core
 
+    A relative ``init_from`` (a second stage that fine-tunes another run) is resolved from the
+    working directory, as ``out`` is.
     Trials start seed by seed (every cell's seed 0 first), in the groups' order within a seed.
     ``out`` and ``collect`` override the file's. Every trial's config is built and validated
     here, so a bad grid fails before anything runs. Raises ``ValueError`` (one line)."""
@@ -117,6 +119,10 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
         seeds = group.get("seeds", [0])
         if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
             raise ValueError(f"grid {spec}: group {g}: seeds must be integers >= 0")
+        overrides = {**base, **(group.get("overrides") or {})}
+        if isinstance(overrides.get("init_from"), str) and overrides["init_from"]:
+            # a run folder named from where the grid runs, wherever its trials' processes run
+            overrides["init_from"] = str(Path(overrides["init_from"]).resolve())
         for recipe in group.get("recipes") or []:
             for seed in seeds:
                 for scenario in scenarios:
@@ -124,7 +130,7 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
                         str(recipe),
                         scenario,
                         seed,
-                        {**base, **(group.get("overrides") or {})},
+                        dict(overrides),
                         float(group.get("estimate_s", 0.0)),
                     )
                     trials.append((seed, g, trial))

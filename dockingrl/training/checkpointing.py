@@ -99,7 +99,8 @@ class Checkpoints:
             ) from None
 
     def warm_start(self) -> dict:
-        """Start a new run from the agent of ``init_from``'s latest checkpoint: its networks,
+        """Start a new run from the agent of ``init_from``'s latest checkpoint (a finished
+        run's, so that a grid never starts from a run still training): its networks,
         optimiser states (and with ``init_replay`` its replay buffer); this run's counters,
         RNG and kept actors stay new. Returns what it started from (``{"run", "frames"}``)."""
         import json
@@ -115,6 +116,11 @@ class Checkpoints:
             raise ArtifactError(f"init_from {source}: no run folder (no readable config.json)")
         if algo != cfg.algo:
             raise ValueError(f"init_from {source}: a {algo} run, not {cfg.algo}")
+        if not (source / "summary.json").exists():
+            raise ValueError(
+                f"init_from {source}: the run has not finished (no summary.json); finish it "
+                f"first (dockingrl train --resume {source})"
+            )
         path = latest_checkpoint(source / "checkpoints")
         if path is None:
             raise ArtifactError(f"init_from {source}: the run holds no checkpoint")
