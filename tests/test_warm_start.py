@@ -124,3 +124,16 @@ def test_the_robust_ft_grid_fine_tunes_each_nominal_seed(tmp_path, monkeypatch):
         cfg = trial.config(grid.out, 1)
         assert Path(cfg.init_from) == tmp_path / "runs" / "table6" / f"sac__filtered__s{trial.seed}"
         assert cfg.init_replay and cfg.train_level == "L5" and cfg.filter_gate > 0
+
+
+def test_an_averaging_run_starts_its_average_at_the_loaded_actor(tiny_runs, tmp_path, short_episodes):
+    _, _, source = tiny_runs("sac", "compound")
+    cfg = tiny_config("sac", "compound", tmp_path, init_from=str(source), actor_average=0.99)
+    trainer = Trainer(cfg, tmp_path / "avg", progress=False)
+    fresh = {k: v.clone() for k, v in trainer.agent.average.module.state_dict().items()}
+    trainer.warm_start()
+    live, averaged = trainer.agent.actor.state_dict(), trainer.agent.average.module.state_dict()
+    assert live.keys() == averaged.keys() == fresh.keys()
+    for key in live:
+        assert torch.equal(live[key], averaged[key]), key
+    assert any(not torch.equal(averaged[k], fresh[k]) for k in fresh), "the average was not moved"
