@@ -64,9 +64,10 @@ def stress_ladder(
         if scenario not in FILTERED_OBSERVATION_KEYS:
             raise ValueError(f"{name} applies to the filtered scenarios only, not {scenario!r}")
         env_kwargs["ekf_kwargs"] = {**env_kwargs.get("ekf_kwargs", {}), **option}
-    gate = env_kwargs.get("ekf_kwargs", {}).get("gate")
-    compensate_latency = bool(env_kwargs.get("ekf_kwargs", {}).get("compensate_latency"))
-    estimate_current = bool(env_kwargs.get("ekf_kwargs", {}).get("estimate_current"))
+    filter_options = env_kwargs.get("ekf_kwargs", {})
+    gate = filter_options.get("gate")
+    compensate_latency = bool(filter_options.get("compensate_latency"))
+    estimate_current = bool(filter_options.get("estimate_current"))
     rows = []
     for level in levels:
         metrics = evaluate(

@@ -96,7 +96,10 @@ class Agent:
             state["averaged"] = self.average.module.state_dict()
         return state
 
-    def load_state_dict(self, state: dict) -> None:
+    def load_state_dict(self, state: dict, *, fresh_average: bool = False) -> None:
+        """Load :meth:`state_dict`'s ``state``. ``fresh_average``: where the agent averages its
+        actor and ``state`` holds no averaged actor (a run started from one that did not
+        average), the average starts at the loaded actor instead of being refused."""
         self.loss.load_state_dict(state["loss"])
         for k, o in self.optimizers.items():
             o.load_state_dict(state["optimizers"][k])
@@ -104,9 +107,12 @@ class Agent:
         if "generator" in state:
             self.extra["generator"].set_state(state["generator"])
         if self.average is not None:
-            if "averaged" not in state:
+            if "averaged" in state:
+                self.average.module.load_state_dict(state["averaged"])
+            elif fresh_average:
+                self.average.module.load_state_dict(self.actor.state_dict())
+            else:
                 raise ValueError("the agent averages its actor; the state holds no averaged actor")
-            self.average.module.load_state_dict(state["averaged"])
 
 
 def scalar(value: torch.Tensor) -> float:

@@ -84,13 +84,16 @@ class Checkpoints:
         del self.candidates[self.cfg.keep_candidates :]
         return True
 
-    def _load_agent(self, path: Path, state: dict, replay: bool) -> None:
+    def _load_agent(
+        self, path: Path, state: dict, replay: bool, fresh_average: bool = False
+    ) -> None:
         """Put the agent of the checkpoint ``path`` (its ``state``, read) into this run's, with
-        its replay buffer where ``replay`` and it has one; ArtifactError where it does not fit."""
+        its replay buffer where ``replay`` and it has one (``fresh_average``: as
+        :meth:`~dockingrl.agents.Agent.load_state_dict`); ArtifactError where it does not fit."""
         from dockingrl.io import ArtifactError, first_line
 
         try:
-            self.agent.load_state_dict(state["agent"])
+            self.agent.load_state_dict(state["agent"], fresh_average=fresh_average)
             if replay and state["replay"] is not None:
                 self.agent.replay_buffer.loads(path / "replay")
         except (KeyError, IndexError, RuntimeError, TypeError, ValueError) as exc:
@@ -127,17 +130,9 @@ class Checkpoints:
         state = read_state(path)
         if cfg.init_replay and (self.agent.replay_buffer is None or state["replay"] is None):
             raise ValueError(f"init_replay: {path} holds no replay buffer to start from")
-        average = self.agent.average
-        if average is not None and "averaged" not in state["agent"]:
-            # this run averages its actor, the other did not: the average starts at its actor
-            self.agent.average = None
-            try:
-                self._load_agent(path, state, replay=cfg.init_replay)
-            finally:
-                self.agent.average = average
-            average.module.load_state_dict(self.agent.actor.state_dict())
-        else:
-            self._load_agent(path, state, replay=cfg.init_replay)
+        # a run that averages its actor, started from one that did not: the average starts at
+        # the loaded actor
+        self._load_agent(path, state, replay=cfg.init_replay, fresh_average=True)
         self.agent.updates = 0
         return {"run": str(source), "frames": state["frames"]}
 
