@@ -18,6 +18,7 @@ def fake_run(
     seed: int,
     success: float,
     early: float = 50.0,
+    by_current: list[tuple[int, float, int]] | None = None,
 ) -> Path:
     run = root / f"{recipe}__{scenario}__s{seed}"
     run.mkdir(parents=True)
@@ -41,6 +42,24 @@ def fake_run(
                 "success_rate": success,
                 "time_s": {"n": docked, "mean": 40.0 + seed, "std": 2.0},
                 "total_reward": {"n": 500, "mean": 10.0 * seed, "std": 1.0},
+                **(
+                    {}
+                    if by_current is None
+                    else {
+                        "by_current_x": [
+                            {
+                                "oc_x": name,
+                                "range": [-0.3 + 0.2 * k, -0.1 + 0.2 * k],
+                                "episodes": n,
+                                "success_rate": rate,
+                                "failures": {"timeout": timeouts, "missed_funnel": 0},
+                            }
+                            for k, (name, (n, rate, timeouts)) in enumerate(
+                                zip(("opposing", "weak", "following"), by_current, strict=True)
+                            )
+                        ]
+                    }
+                ),
             }
         )
     )
@@ -143,3 +162,43 @@ def test_a_baseline_without_times_is_one_line(tmp_path):
     bad.write_text(json.dumps({"success_rate": 25.4}))
     with pytest.raises(SystemExit, match="baseline .*bad.json: not an evaluation's eval.json"):
         main(["table", str(run), "--out", str(tmp_path / "out"), "--baseline", str(bad)])
+
+
+def test_success_per_third_of_the_current_pooled_over_seeds(tmp_path):
+    split = {
+        0: [(100, 100.0, 0), (100, 90.0, 2), (300, 50.0, 140)],
+        1: [(200, 99.0, 1), (100, 80.0, 5), (200, 25.0, 150)],
+    }
+    runs = [
+        fake_run(tmp_path, "sac", "sac", "compound", s, 80.0, by_current=split[s]) for s in (0, 1)
+    ]
+    table = write_table(runs, tmp_path / "out")
+    parts = table["cells"][0]["success_by_current_x"]
+    assert [p["oc_x"] for p in parts] == ["opposing", "weak", "following"]
+    # pooled over episodes: following = (150 + 50) / 500, not the mean of 50 and 25
+    assert [p["episodes"] for p in parts] == [300, 200, 500]
+    assert [p["success_rate"] for p in parts] == pytest.approx([298 / 3, 85.0, 40.0])
+    assert parts[2]["per_seed"] == [50.0, 25.0] and parts[2]["timeouts"] == 290
+    md = (tmp_path / "out" / "table.md").read_text()
+    assert "| sac | compound | 99.3 (100.0, 99.0) / 1 | 85.0 (90.0, 80.0) / 7 | " in md
+    assert "40.0 (50.0, 25.0) / 290 |" in md
+
+
+def test_runs_without_the_current_split_leave_it_out(tmp_path):
+    runs = [fake_run(tmp_path, "sac", "sac", "noise", 0, 70.0)]
+    runs.append(fake_run(tmp_path, "sac", "sac", "noise", 1, 75.0, by_current=[(1, 1.0, 0)] * 3))
+    table = write_table(runs, tmp_path / "out")
+    assert table["cells"][0]["success_by_current_x"] is None
+    assert "per third of the along-axis current" not in (tmp_path / "out" / "table.md").read_text()
+
+
+def test_runs_that_split_the_current_differently_are_refused(tmp_path):
+    runs = [
+        fake_run(tmp_path, "sac", "sac", "noise", s, 70.0, by_current=[(1, 1.0, 0)] * 3)
+        for s in (0, 1)
+    ]
+    data = json.loads((runs[1] / "eval.json").read_text())
+    data["by_current_x"][0]["oc_x"] = "against"
+    (runs[1] / "eval.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="split the current differently"):
+        write_table(runs, tmp_path / "out")

@@ -68,6 +68,33 @@ def _at(curve: list[tuple[int, float]], steps: int) -> tuple[int, float] | None:
     return next(((s, v) for s, v in curve if s >= steps), None)
 
 
+def by_current(runs: list[dict]) -> list[dict] | None:
+    """A cell's success per third of the along-axis current (the final evaluations'
+    ``by_current_x``: ``opposing``, ``weak``, ``following``), pooled over its seeds' episodes,
+    with each seed's rate; None when a run's evaluation has no split."""
+    splits = [r["eval"].get("by_current_x") for r in runs]
+    if any(not s for s in splits):
+        return None
+    out = []
+    for k, part in enumerate(splits[0]):
+        groups = [s[k] for s in splits]
+        if any(g["oc_x"] != part["oc_x"] for g in groups):
+            raise ValueError(f"runs split the current differently: {[g['oc_x'] for g in groups]}")
+        episodes = sum(g["episodes"] for g in groups)
+        docked = sum(g["success_rate"] * g["episodes"] / 100 for g in groups)
+        out.append(
+            {
+                "oc_x": part["oc_x"],
+                "range": part["range"],
+                "episodes": episodes,
+                "success_rate": 100 * docked / episodes if episodes else float("nan"),
+                "per_seed": [g["success_rate"] for g in groups],
+                "timeouts": sum(g["failures"]["timeout"] for g in groups),
+            }
+        )
+    return out
+
+
 def cell(runs: list[dict]) -> dict:
     """One cell of the table from its seeds' runs."""
     from scipy.stats import binomtest
@@ -98,6 +125,7 @@ def cell(runs: list[dict]) -> dict:
             "per_seed": [v for _, v in early],
             "steps": [s for s, _ in early],
         },
+        "success_by_current_x": by_current(runs),
         "env_steps": [r["summary"]["frames"] for r in runs],
         "train_wall_clock_s": [r["summary"]["train_wall_clock_s"] for r in runs],
         "machine": sorted({r["summary"].get("machine", "") for r in runs}),
@@ -202,6 +230,9 @@ def markdown(table: dict) -> str:
         "",
         table["statistics"] + ".",
         "",
+    ]
+    lines += by_current_markdown(table["cells"])
+    lines += [
         "| claim | recipe | difference | 95 % CI | the paper's difference | verdict |",
         "|---|---|---|---|---|---|",
     ]
@@ -224,6 +255,33 @@ def markdown(table: dict) -> str:
             values = ", ".join(f"{k} {v:.1f} %" for k, v in sorted(c["values"].items()))
             lines.append(f"| {c['claim']} | {c['best']} | {values} | - | - | - |")
     return "\n".join(lines) + "\n"
+
+
+def by_current_markdown(cells: list[dict]) -> list[str]:
+    """The success of each cell per third of the along-axis current, as markdown lines."""
+    rows = [c for c in cells if c.get("success_by_current_x")]
+    if not rows:
+        return []
+    parts = rows[0]["success_by_current_x"]
+    head = " | ".join(
+        f"{p['oc_x']} ({p['range'][0]:+.1f} to {p['range'][1]:+.1f} m/s)" for p in parts
+    )
+    lines = [
+        "Success % per third of the along-axis current (positive: towards the station), pooled "
+        "over the seeds' final-evaluation episodes, each seed's in brackets; timeouts of the "
+        "third after the slash:",
+        "",
+        f"| recipe | scenario | {head} |",
+        "|---|---|" + "---|" * len(parts),
+    ]
+    for c in rows:
+        cols = " | ".join(
+            f"{p['success_rate']:.1f} ({', '.join(f'{v:.1f}' for v in p['per_seed'])}) / "
+            f"{p['timeouts']}"
+            for p in c["success_by_current_x"]
+        )
+        lines.append(f"| {c['recipe']} | {c['scenario']} | {cols} |")
+    return lines + [""]
 
 
 def plot_curves(
