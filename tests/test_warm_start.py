@@ -84,9 +84,21 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
     with pytest.raises(ValueError, match="init_replay takes .* give --init-from RUN_DIR"):
         training.train(tiny_config("sac", "compound", tmp_path, init_replay=True), progress=False)
     cases = [
-        (tiny_config("sac", "compound", tmp_path, init_from=str(ppo_run)), ValueError, "a ppo run, not sac"),
-        (tiny_config("sac", "compound", tmp_path, init_from=str(tmp_path)), ArtifactError, "no run folder"),
-        (tiny_config("ppo", "noise", tmp_path, init_from=str(ppo_run), init_replay=True), ValueError, "no replay buffer"),
+        (
+            tiny_config("sac", "compound", tmp_path, init_from=str(ppo_run)),
+            ValueError,
+            "a ppo run, not sac",
+        ),
+        (
+            tiny_config("sac", "compound", tmp_path, init_from=str(tmp_path)),
+            ArtifactError,
+            "no run folder",
+        ),
+        (
+            tiny_config("ppo", "noise", tmp_path, init_from=str(ppo_run), init_replay=True),
+            ValueError,
+            "no replay buffer",
+        ),
     ]
     for cfg, error, message in cases:
         trainer = Trainer(cfg, tmp_path / "fine", progress=False)
@@ -96,7 +108,9 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
     shutil.copytree(sac_run, unfinished)
     (unfinished / "summary.json").unlink()
     trainer = Trainer(
-        tiny_config("sac", "compound", tmp_path, init_from=str(unfinished)), tmp_path / "u", progress=False
+        tiny_config("sac", "compound", tmp_path, init_from=str(unfinished)),
+        tmp_path / "u",
+        progress=False,
     )
     with pytest.raises(ValueError, match="has not finished .*dockingrl train --resume"):
         trainer.warm_start()
@@ -104,7 +118,11 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
     empty.mkdir()
     (empty / "config.json").write_text(json.dumps({"algo": "sac"}))
     (empty / "summary.json").write_text("{}")
-    trainer = Trainer(tiny_config("sac", "compound", tmp_path, init_from=str(empty)), tmp_path / "f", progress=False)
+    trainer = Trainer(
+        tiny_config("sac", "compound", tmp_path, init_from=str(empty)),
+        tmp_path / "f",
+        progress=False,
+    )
     with pytest.raises(ArtifactError, match="holds no checkpoint"):
         trainer.warm_start()
     wider = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), hidden=(48, 48))
@@ -126,7 +144,9 @@ def test_the_robust_ft_grid_fine_tunes_each_nominal_seed(tmp_path, monkeypatch):
         assert cfg.init_replay and cfg.train_level == "L5" and cfg.filter_gate > 0
 
 
-def test_an_averaging_run_starts_its_average_at_the_loaded_actor(tiny_runs, tmp_path, short_episodes):
+def test_an_averaging_run_starts_its_average_at_the_loaded_actor(
+    tiny_runs, tmp_path, short_episodes
+):
     _, _, source = tiny_runs("sac", "compound")
     cfg = tiny_config("sac", "compound", tmp_path, init_from=str(source), actor_average=0.99)
     trainer = Trainer(cfg, tmp_path / "avg", progress=False)

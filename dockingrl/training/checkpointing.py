@@ -59,7 +59,7 @@ class Checkpoints:
         Raises :class:`~dockingrl.io.ArtifactError` for a damaged, crafted or older one, or
         one that does not fit this run's agent."""
         from dockingrl.checkpoint import latest_checkpoint, read_state
-        from dockingrl.io import ArtifactError, first_line
+        from dockingrl.io import ArtifactError
 
         path = latest_checkpoint(self.checkpoint_root)
         if path is None:
@@ -116,7 +116,9 @@ class Checkpoints:
         try:
             algo = json.loads((source / "config.json").read_text())["algo"]
         except (OSError, ValueError, KeyError, TypeError):
-            raise ArtifactError(f"init_from {source}: no run folder (no readable config.json)")
+            raise ArtifactError(
+                f"init_from {source}: no run folder (no readable config.json)"
+            ) from None
         if algo != cfg.algo:
             raise ValueError(f"init_from {source}: a {algo} run, not {cfg.algo}")
         if not (source / "summary.json").exists():
