@@ -202,3 +202,16 @@ def test_runs_that_split_the_current_differently_are_refused(tmp_path):
     (runs[1] / "eval.json").write_text(json.dumps(data))
     with pytest.raises(ValueError, match="split the current differently"):
         write_table(runs, tmp_path / "out")
+
+
+def test_cells_that_split_the_current_differently_are_refused(tmp_path):
+    runs = [
+        fake_run(tmp_path, "sac", "sac", scenario, 0, 70.0, by_current=[(1, 1.0, 0)] * 3)
+        for scenario in ("noise", "compound")
+    ]
+    data = json.loads((runs[1] / "eval.json").read_text())
+    data["by_current_x"][2]["range"] = [0.1, 0.5]
+    (runs[1] / "eval.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="split the current differently"):
+        write_table(runs, tmp_path / "out")
+    assert not (tmp_path / "out").exists()  # nothing written

@@ -68,6 +68,14 @@ def _at(curve: list[tuple[int, float]], steps: int) -> tuple[int, float] | None:
     return next(((s, v) for s, v in curve if s >= steps), None)
 
 
+def _same_split(splits: list[list[dict]]) -> None:
+    """Refuse splits of the current (``by_current_x`` lists) whose thirds differ in name or
+    range: their rates would be pooled or labelled as one."""
+    labels = {tuple((p["oc_x"], tuple(p["range"])) for p in split) for split in splits}
+    if len(labels) > 1:
+        raise ValueError(f"runs split the current differently: {sorted(labels)}")
+
+
 def by_current(runs: list[dict]) -> list[dict] | None:
     """A cell's success per third of the along-axis current (the final evaluations'
     ``by_current_x``: ``opposing``, ``weak``, ``following``), pooled over its seeds' episodes,
@@ -75,11 +83,10 @@ def by_current(runs: list[dict]) -> list[dict] | None:
     splits = [r["eval"].get("by_current_x") for r in runs]
     if any(not s for s in splits):
         return None
+    _same_split(splits)
     out = []
     for k, part in enumerate(splits[0]):
         groups = [s[k] for s in splits]
-        if any(g["oc_x"] != part["oc_x"] for g in groups):
-            raise ValueError(f"runs split the current differently: {[g['oc_x'] for g in groups]}")
         episodes = sum(g["episodes"] for g in groups)
         docked = sum(g["success_rate"] * g["episodes"] / 100 for g in groups)
         out.append(
@@ -166,6 +173,8 @@ def write_table(
         key = (r["config"].get("recipe") or r["config"]["algo"], r["config"]["scenario"])
         groups.setdefault(key, []).append(r)
     cells = {key: cell(group) for key, group in groups.items()}
+    # one header labels every cell's thirds of the current in table.md
+    _same_split([c["success_by_current_x"] for c in cells.values() if c["success_by_current_x"]])
     order = sorted(
         cells, key=lambda k: (k[0].startswith("paper-"), k[0], SCENARIO_ORDER.index(k[1]))
     )
