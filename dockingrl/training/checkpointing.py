@@ -132,7 +132,7 @@ class Checkpoints:
         state = read_state(path)
         if cfg.init_replay and (self.agent.replay_buffer is None or state["replay"] is None):
             raise ValueError(f"init_replay: {path} holds no replay buffer to start from")
-        # a run that averages its actor, started from one that did not: the average starts at
+        # where this run averages its actor and the source run did not, the average starts at
         # the loaded actor
         self._load_agent(path, state, replay=cfg.init_replay, fresh_average=True)
         self.agent.updates = 0
