@@ -183,3 +183,31 @@ def test_a_trial_whose_worker_dies_is_started_again_after_a_pause(tmp_path, monk
     states = driver.run_grid(grid, max_concurrent=1, view_every=1)
     assert states == {"ppo__noise__s0": "failed"}
     assert len(list(deaths_forever.iterdir())) == 1 + driver.WORKER_RETRIES
+
+
+def test_part_of_a_grid_runs_by_trial_name_with_its_own_threads(tmp_path):
+    from dockingrl.grid import select_trials
+
+    grid = load_grid(write_grid(tmp_path, seeds=(0, 1, 2)))
+    part = select_trials(grid, ["*__s2", "ppo__noise__s0"], threads=2)
+    assert [t.name for t in part.trials] == ["ppo__noise__s0", "ppo__noise__s2"]  # grid order
+    assert part.threads == 2 and part.out == grid.out and part.collect == grid.collect
+    assert select_trials(grid).trials == grid.trials and select_trials(grid).threads == 1
+    with pytest.raises(ValueError, match="no trial matches 'td3__\\*'") as info:
+        select_trials(grid, ["ppo__*", "td3__*"])
+    assert "\n" not in str(info.value)
+
+
+def test_a_trial_resumes_with_the_threads_it_is_given(tmp_path, monkeypatch):
+    import dockingrl.training
+    from dockingrl.grid import run_trial
+
+    grid = load_grid(write_grid(tmp_path, seeds=(0,)))
+    trial = grid.trials[0]
+    run_dir = grid.run_dir(trial)
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.json").write_text(json.dumps(trial.config(grid.out, 1).to_dict()))
+    calls = []
+    monkeypatch.setattr(dockingrl.training, "train", lambda cfg, **kw: calls.append(kw))
+    assert run_trial(trial, str(grid.out), 2)["status"] == "finished"
+    assert calls[0]["resume"] == run_dir and calls[0]["overrides"] == {"threads": 2}

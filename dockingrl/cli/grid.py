@@ -10,9 +10,10 @@ from dockingrl.provenance import command_line
 
 
 def cmd_grid(args: argparse.Namespace) -> int:
-    from dockingrl.grid import load_grid, run_grid
+    from dockingrl.grid import load_grid, run_grid, select_trials
 
     grid = load_grid(args.grid, out=args.out, collect=args.collect)
+    grid = select_trials(grid, args.only, args.threads)
     if args.list:
         from dockingrl.grid import finished_summary
 
@@ -70,6 +71,20 @@ def add_grid_commands(sub) -> None:
     gr.add_argument("--address", help="an existing Ray cluster to run on (default: local Ray)")
     gr.add_argument("--out", help="folder of the run folders (default: the grid file's)")
     gr.add_argument("--collect", help="folder for finished trials' small files (default: file's)")
+    gr.add_argument(
+        "--only",
+        nargs="+",
+        metavar="PATTERN",
+        help="run (or list) only the trials whose names match a pattern, e.g. 'td3__*' "
+        "'*__compound__s1' (names: RECIPE__SCENARIO__sSEED); the rest are left as they are",
+    )
+    gr.add_argument(
+        "--threads",
+        type=COUNT,
+        default=None,
+        help="torch threads (and Ray CPUs) per trial (default: the grid file's); a trial may "
+        "resume with another count",
+    )
     gr.add_argument("--max-concurrent", type=COUNT, default=None, help="trials at once")
     gr.add_argument(
         "--hours",

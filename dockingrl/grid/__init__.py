@@ -19,7 +19,7 @@ the grid while it runs and :mod:`~dockingrl.grid.driver` runs the grid on Ray.
 """
 
 from dockingrl.grid.driver import run_grid
-from dockingrl.grid.files import Grid, Trial, grid_names, load_grid
+from dockingrl.grid.files import Grid, Trial, grid_names, load_grid, select_trials
 from dockingrl.grid.folders import collect_trial, config_mismatch, finished_summary, progress
 from dockingrl.grid.trial import run_trial
 
@@ -34,4 +34,5 @@ __all__ = [
     "progress",
     "run_grid",
     "run_trial",
+    "select_trials",
 ]

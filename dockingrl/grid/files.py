@@ -56,6 +56,32 @@ class Grid:
         return self.out / trial.name
 
 
+def select_trials(
+    grid: Grid, patterns: list[str] | None = None, threads: int | None = None
+) -> Grid:
+    """``grid`` with only the trials whose names match one of the shell-style ``patterns``
+    (``td3__*``, ``*__compound__s1``; in the grid's order) and, if given, ``threads`` torch
+    threads per trial. A trial keeps its folder and config, so running part of a grid and then
+    the whole one finds that part finished; the thread count is how a trial runs, not what it
+    computes, so a trial may resume with another. Raises ``ValueError`` (one line) for a pattern
+    that matches no trial or a thread count below 1."""
+    from dataclasses import replace
+    from fnmatch import fnmatchcase
+
+    if threads is not None and threads < 1:
+        raise ValueError(f"grid {grid.name}: threads must be >= 1 (got {threads})")
+    trials = grid.trials
+    if patterns:
+        unmatched = [p for p in patterns if not any(fnmatchcase(t.name, p) for t in trials)]
+        if unmatched:
+            raise ValueError(
+                f"grid {grid.name}: no trial matches {', '.join(map(repr, unmatched))} "
+                f"(names are RECIPE__SCENARIO__sSEED, e.g. {trials[0].name})"
+            )
+        trials = [t for t in trials if any(fnmatchcase(t.name, p) for p in patterns)]
+    return replace(grid, trials=trials, threads=threads or grid.threads)
+
+
 def grid_names() -> list[str]:
     """The grid files shipped with dockingrl."""
     root = resources.files("dockingrl.grids")

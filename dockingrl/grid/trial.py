@@ -41,7 +41,13 @@ def run_trial(trial: Trial, out: str, threads: int) -> dict:
                                 f"{run_dir} holds a run of another config ({', '.join(changed)} "
                                 "differ): move it away or name the changed recipe anew"
                             )
-                        train(None, resume=run_dir, progress=False, command=_command(trial))
+                        train(
+                            None,
+                            resume=run_dir,
+                            progress=False,
+                            command=_command(trial),
+                            overrides={"threads": threads},
+                        )
                     else:
                         train(cfg, progress=False, command=_command(trial))
                     return result
