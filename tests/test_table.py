@@ -19,10 +19,13 @@ def fake_run(
     success: float,
     early: float = 50.0,
     by_current: list[tuple[int, float, int]] | None = None,
+    config: dict | None = None,
+    name: str = "",
 ) -> Path:
-    run = root / f"{recipe}__{scenario}__s{seed}"
+    run = root / (name or f"{recipe}__{scenario}__s{seed}")
+    config = config or {}
     run.mkdir(parents=True)
-    config = {"recipe": recipe, "algo": algo, "scenario": scenario, "seed": seed}
+    config = {"recipe": recipe, "algo": algo, "scenario": scenario, "seed": seed, **config}
     (run / "config.json").write_text(json.dumps(config))
     (run / "summary.json").write_text(
         json.dumps(
@@ -40,7 +43,9 @@ def fake_run(
             {
                 "episodes": 500,
                 "success_rate": success,
-                "time_s": {"n": docked, "mean": 40.0 + seed, "std": 2.0},
+                # 20 contacts too fast besides the successes; they end sooner
+                "time_s": {"n": docked + 20, "mean": 40.0 + seed, "std": 2.0},
+                "time_success_s": {"n": docked, "mean": 42.0 + seed, "std": 2.0},
                 "total_reward": {"n": 500, "mean": 10.0 * seed, "std": 1.0},
                 **(
                     {}
@@ -89,8 +94,10 @@ def test_the_table_of_three_seeds(tmp_path):
     cells = {(c["recipe"], c["scenario"]): c for c in table["cells"]}
     c = cells[("sac", "compound")]
     assert c["success_mean"] == pytest.approx(94.0) and c["seeds"] == [0, 1, 2]
-    low, high = c["success_ci95_over_seeds"]
-    assert 90.0 <= low < 94.0 < high <= 98.0
+    # Student's t over the three seeds (mean 94, sd 4), clipped at 100 %: wider than their
+    # range, which a percentile bootstrap of three values would give
+    t975 = 4.302652729911275  # the 97.5 % quantile of t with 2 degrees of freedom
+    assert c["success_ci95_over_seeds"] == pytest.approx([94.0 - t975 * 4 / 3**0.5, 100.0])
     # Wilson's score interval for 1,410 successes in 1,500 episodes, written out
     k, n, z = 1410, 1500, 1.959963984540054
     centre = (k + z * z / 2) / (n + z * z)
@@ -105,12 +112,14 @@ def test_the_table_of_three_seeds(tmp_path):
         "steps": [210_000] * 3,
     }
     assert EARLY_STEPS == 200_000
-    # time pooled over docked episodes of the three seeds: 450 + 470 + 490 episodes
-    assert c["time_docked_s"]["n"] == 1410
-    assert c["time_docked_s"]["mean"] == pytest.approx((450 * 40 + 470 * 41 + 490 * 42) / 1410)
+    # time pooled over docked episodes of the three seeds: 470 + 490 + 510 episodes
+    assert c["time_docked_s"]["n"] == 1470
+    assert c["time_docked_s"]["mean"] == pytest.approx((470 * 40 + 490 * 41 + 510 * 42) / 1470)
+    assert c["time_success_s"]["n"] == 1410
     claim = next(x for x in table["claims"] if x["claim"] == "compound >= noise")
     assert claim["difference_points"] == pytest.approx(29.0)
     assert claim["verdict"].startswith("holds") and claim["ci95"][0] > 0
+    assert claim["p_value"] < 0.05
     out = tmp_path / "out"
     assert (out / "figures_sac.png").stat().st_size > 10_000
     md = (out / "table.md").read_text()
@@ -137,19 +146,22 @@ def test_the_managed_surge_claim_and_the_papers_margin(tmp_path):
     runs = [fake_run(tmp_path, "sac", "sac", "compound", s, 90.0 + s) for s in (0, 1)]
     runs += [fake_run(tmp_path, "sac", "sac", "noise", s, 60.0 + s) for s in (0, 1)]
     surge = tmp_path / "surge.json"
-    surge.write_text(json.dumps({"time_s": {"n": 120, "mean": 59.2, "std": 5.0}}))
+    surge.write_text(json.dumps({"time_success_s": {"n": 120, "mean": 59.2, "std": 5.0}}))
     table = write_table(runs, tmp_path / "out", baseline=surge)
     margin = next(x for x in table["claims"] if x["claim"] == "compound >= noise")
     # Table 6: SAC compound 99.4 %, noise 73.4 %
     assert margin["paper_difference_points"] == pytest.approx(26.0)
     faster = {x["claim"]: x for x in table["claims"] if "difference_s" in x}
     compound = faster["docks faster than the managed surge controller (compound)"]
-    # the fake runs dock in 40 s (seed 0) and 41 s (seed 1)
-    assert compound["time_s"] == pytest.approx((450 * 40 + 455 * 41) / 905)
-    assert compound["difference_s"] < -17 and compound["p_value"] < 1e-6
+    # the fake runs dock successfully in 42 s (seed 0) and 43 s (seed 1); their faster
+    # contacts that fail do not count
+    assert compound["time_s"] == pytest.approx((450 * 42 + 455 * 43) / 905)
+    assert compound["episodes"] == 905 and compound["baseline_episodes"] == 120
+    assert compound["difference_s"] == pytest.approx(compound["time_s"] - 59.2)
+    assert compound["difference_s"] < -16 and compound["p_value"] < 1e-6
     assert compound["verdict"] == "holds: faster"
     slow = tmp_path / "slow.json"
-    slow.write_text(json.dumps({"time_s": {"n": 120, "mean": 30.0, "std": 5.0}}))
+    slow.write_text(json.dumps({"time_success_s": {"n": 120, "mean": 30.0, "std": 5.0}}))
     table = write_table(runs, tmp_path / "out2", baseline=slow)
     verdicts = {x["verdict"] for x in table["claims"] if "difference_s" in x}
     assert verdicts == {"fails: slower"}
@@ -215,3 +227,68 @@ def test_cells_that_split_the_current_differently_are_refused(tmp_path):
     with pytest.raises(ValueError, match="split the current differently"):
         write_table(runs, tmp_path / "out")
     assert not (tmp_path / "out").exists()  # nothing written
+
+
+def test_a_difference_within_three_seeds_spread_is_not_a_finding(tmp_path):
+    # compound 3 points above on average, but its seeds spread over 10: a percentile bootstrap
+    # of three seeds (their range) would call it a finding; Welch's t-test does not
+    runs = [fake_run(tmp_path, "ppo", "ppo", "compound", s, v) for s, v in enumerate((85, 80, 90))]
+    runs += [fake_run(tmp_path, "ppo", "ppo", "noise", s, v) for s, v in enumerate((83, 81, 82))]
+    table = write_table(runs, tmp_path / "out")
+    claim = next(x for x in table["claims"] if x["claim"] == "compound >= noise")
+    assert claim["verdict"].startswith("not resolved") and claim["p_value"] > 0.05
+    assert claim["ci95"][0] < 0 < claim["ci95"][1]
+
+
+def test_seeds_that_agree_give_no_interval(tmp_path):
+    runs = [fake_run(tmp_path, "td3", "td3", "compound", s, 90.0) for s in (0, 1)]
+    runs += [fake_run(tmp_path, "td3", "td3", "noise", s, 70.0) for s in (0, 1)]
+    table = write_table(runs, tmp_path / "out")
+    assert table["cells"][0]["success_ci95_over_seeds"] is None
+    claim = next(x for x in table["claims"] if x["claim"] == "compound >= noise")
+    assert claim["ci95"] is None and claim["verdict"] == "not resolved: no spread in seeds"
+
+
+def test_per_seed_values_follow_the_seeds_whatever_the_order_given(tmp_path):
+    runs = [fake_run(tmp_path, "sac", "sac", "noise", s, v) for s, v in ((10, 70.0), (2, 60.0))]
+    runs.append(fake_run(tmp_path, "sac", "sac", "noise", 1, 50.0))
+    c = write_table(runs, tmp_path / "out")["cells"][0]  # given as seeds 10, 2, 1
+    assert c["seeds"] == [1, 2, 10] and c["success_per_seed"] == [50.0, 60.0, 70.0]
+
+
+def test_a_seed_given_twice_or_budgets_that_differ_are_refused(tmp_path):
+    a = fake_run(tmp_path, "sac", "sac", "noise", 0, 60.0)
+    b = fake_run(tmp_path, "sac", "sac", "noise", 0, 61.0, name="copy_of_s0")
+    with pytest.raises(SystemExit, match="cell sac noise: seed 0 given twice"):
+        main(["table", str(a), str(b), "--out", str(tmp_path / "out")])
+    c = fake_run(tmp_path, "sac", "sac", "noise", 1, 61.0, config={"total_steps": 1_000_000})
+    with pytest.raises(SystemExit, match="different total_steps"):
+        main(["table", str(a), str(c), "--out", str(tmp_path / "out")])
+
+
+def test_a_third_of_the_current_without_episodes_in_a_run(tmp_path):
+    runs = [
+        fake_run(
+            tmp_path,
+            "sac",
+            "sac",
+            "noise",
+            0,
+            60.0,
+            by_current=[(250, 80.0, 0), (250, 40.0, 3), (0, None, 0)],
+        ),
+        fake_run(
+            tmp_path,
+            "sac",
+            "sac",
+            "noise",
+            1,
+            60.0,
+            by_current=[(200, 80.0, 0), (200, 40.0, 3), (100, 60.0, 1)],
+        ),
+    ]
+    table = write_table(runs, tmp_path / "out")
+    following = table["cells"][0]["success_by_current_x"][2]
+    assert following["episodes"] == 100 and following["success_rate"] == pytest.approx(60.0)
+    assert following["per_seed"] == [None, 60.0]
+    assert "60.0 (-, 60.0) / 1" in (tmp_path / "out" / "table.md").read_text()

@@ -2,10 +2,10 @@
 seeds' final 500-episode evaluations with intervals, the paper's values beside them, success
 at 200 k env steps, learning curves over seeds, and the paper's claims tested.
 
-Statistics are scipy's: the interval of a cell's mean success over seeds is a percentile
-bootstrap (:func:`scipy.stats.bootstrap`, 10,000 resamples); the interval of the success rate
-over all of a cell's episodes is Wilson's (:meth:`scipy.stats.binomtest.proportion_ci`). With
-three seeds a bootstrap interval is coarse: it can never be wider than the seeds' range.
+Statistics are scipy's: the interval of a cell's mean success over seeds is Student's t
+(:func:`~dockingrl.table.claims.seed_ci`; why not a bootstrap: :mod:`dockingrl.table.claims`);
+the interval of the success rate over all of a cell's episodes is Wilson's
+(:meth:`scipy.stats.binomtest.proportion_ci`).
 """
 
 from __future__ import annotations
@@ -19,11 +19,10 @@ import numpy as np
 from dockingrl.evaluation import PAPER_RESULTS
 from dockingrl.io import atomic_write, write_json
 from dockingrl.table.claims import (
-    RESAMPLES,
-    bootstrap_ci,
     claims,
     faster_than_baseline,
     read_baseline,
+    seed_ci,
 )
 
 SCENARIO_ORDER = ("no_noise", "noise", "filtered", "compound")
@@ -88,13 +87,14 @@ def by_current(runs: list[dict]) -> list[dict] | None:
     for k, part in enumerate(splits[0]):
         groups = [s[k] for s in splits]
         episodes = sum(g["episodes"] for g in groups)
-        docked = sum(g["success_rate"] * g["episodes"] / 100 for g in groups)
+        # a third with no episode in a run has no rate (None)
+        docked = sum((g["success_rate"] or 0.0) * g["episodes"] / 100 for g in groups)
         out.append(
             {
                 "oc_x": part["oc_x"],
                 "range": part["range"],
                 "episodes": episodes,
-                "success_rate": 100 * docked / episodes if episodes else float("nan"),
+                "success_rate": 100 * docked / episodes if episodes else None,
                 "per_seed": [g["success_rate"] for g in groups],
                 "timeouts": sum(g["failures"]["timeout"] for g in groups),
             }
@@ -103,9 +103,21 @@ def by_current(runs: list[dict]) -> list[dict] | None:
 
 
 def cell(runs: list[dict]) -> dict:
-    """One cell of the table from its seeds' runs."""
+    """One cell of the table from its seeds' runs (every per-seed list in the order of
+    ``seeds``). Raises ``ValueError`` for a seed given twice or seeds of different budgets."""
     from scipy.stats import binomtest
 
+    runs = sorted(runs, key=lambda r: r["config"]["seed"])
+    name = f"{runs[0]['config'].get('recipe') or runs[0]['config']['algo']} "
+    name += runs[0]["config"]["scenario"]
+    seeds = [r["config"]["seed"] for r in runs]
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:
+        dirs = [str(r["dir"]) for r in runs if r["config"]["seed"] in twice]
+        raise ValueError(f"cell {name}: seed {twice[0]} given twice ({', '.join(dirs)})")
+    budgets = sorted({r["config"].get("total_steps") for r in runs}, key=str)
+    if len(budgets) > 1:
+        raise ValueError(f"cell {name}: its runs train for different total_steps {budgets}")
     success = [r["eval"]["success_rate"] for r in runs]
     episodes = [r["eval"]["episodes"] for r in runs]
     docked = round(sum(s * n / 100 for s, n in zip(success, episodes, strict=True)))
@@ -119,13 +131,14 @@ def cell(runs: list[dict]) -> dict:
         "recipe": runs[0]["config"].get("recipe", ""),
         "algo": algo,
         "scenario": runs[0]["config"]["scenario"],
-        "seeds": sorted(r["config"]["seed"] for r in runs),
+        "seeds": seeds,
         "success_per_seed": success,
         "success_mean": float(np.mean(success)),
-        "success_ci95_over_seeds": bootstrap_ci(success),
+        "success_ci95_over_seeds": seed_ci(success),
         "success_ci95_over_episodes": [100 * wilson.low, 100 * wilson.high],
         "episodes": sum(episodes),
         "time_docked_s": _pooled([r["eval"]["time_s"] for r in runs]),
+        "time_success_s": _pooled([r["eval"].get("time_success_s") or {} for r in runs]),
         "total_reward": _pooled([r["eval"]["total_reward"] for r in runs]),
         "success_at_200k": {
             "mean": float(np.mean([v for _, v in early])) if early else None,
@@ -181,11 +194,15 @@ def write_table(
     table = {
         "cells": [cells[k] for k in order],
         "claims": claims(cells) + (faster_than_baseline(cells, base) if base else []),
-        "statistics": "success_ci95_over_seeds: percentile bootstrap of the mean over seeds "
-        f"(scipy.stats.bootstrap, {RESAMPLES} resamples); success_ci95_over_episodes: Wilson "
-        "interval over all the cell's final-evaluation episodes; time over docked episodes, "
-        f"reward over all episodes, pooled over seeds; success_at_200k: the first periodic "
-        f"evaluation at or after {EARLY_STEPS} env steps",
+        "statistics": "success_ci95_over_seeds: Student-t interval of the mean over seeds "
+        "(scipy.stats.t; '-' below two seeds; a percentile bootstrap of three seeds would be "
+        "their range, which covers about 3 times in 4); claims over seeds: Welch's t-test "
+        "(scipy.stats.ttest_ind, equal_var=False); success_ci95_over_episodes: Wilson "
+        "interval over all the cell's final-evaluation episodes; time over docked episodes "
+        "(any contact, as the paper's), reward over all episodes, pooled over seeds; the "
+        "claim 'docks faster' over successful episodes only; success_at_200k: the first "
+        f"periodic evaluation at or after {EARLY_STEPS} env steps (the step it was read at "
+        "in brackets)",
     }
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "table.json", table)
@@ -208,6 +225,17 @@ def _fmt_ci(ci) -> str:
     return "-" if ci is None else f"[{ci[0]:.1f}, {ci[1]:.1f}]"
 
 
+def _early(early: dict) -> str:
+    """Success at 200 k env steps and the (latest) step its seeds were read at."""
+    if early["mean"] is None:
+        return "-"
+    return f"{early['mean']:.1f} ({max(early['steps']) / 1000:.0f} k)"
+
+
+def _rate(value) -> str:
+    return "-" if value is None else f"{value:.1f}"
+
+
 def markdown(table: dict) -> str:
     lines = [
         "| recipe | scenario | seeds | success % (mean) | 95 % CI over seeds | 95 % CI over "
@@ -217,7 +245,7 @@ def markdown(table: dict) -> str:
     ]
     for c in table["cells"]:
         p = c["paper"] or {}
-        t, rw, e = c["time_docked_s"], c["total_reward"], c["success_at_200k"]["mean"]
+        t, rw = c["time_docked_s"], c["total_reward"]
         lines.append(
             f"| {c['recipe']} | {c['scenario']} | {len(c['seeds'])} | "
             f"{c['success_mean']:.1f} ({', '.join(f'{s:.1f}' for s in c['success_per_seed'])}) | "
@@ -227,7 +255,7 @@ def markdown(table: dict) -> str:
             + (f"{p['time_mean']} +- {p['time_std']}" if p else "-")
             + f" | {rw['mean']:.1f} +- {rw['std']:.1f} | "
             + (f"{p['reward_mean']} +- {p['reward_std']}" if p else "-")
-            + f" | {'-' if e is None else f'{e:.1f}'} |"
+            + f" | {_early(c['success_at_200k'])} |"
         )
     commits = sorted({x for c in table["cells"] for x in c["code"]})
     machines = sorted({x for c in table["cells"] for x in c["machine"]})
@@ -256,7 +284,8 @@ def markdown(table: dict) -> str:
         elif "difference_s" in c:
             lines.append(
                 f"| {c['claim']} | {c['recipe']} | {c['difference_s']:+.1f} s "
-                f"({c['time_s']:.1f} against {c['baseline_time_s']:.1f}) | Welch p "
+                f"({c['time_s']:.1f} s over {c['episodes']} successes against "
+                f"{c['baseline_time_s']:.1f} over {c['baseline_episodes']}) | Welch p "
                 + (f"= {c['p_value']:.2g}" if c["p_value"] > 0 else "< 1e-300")
                 + f" | - | {c['verdict']} |"
             )
@@ -285,8 +314,7 @@ def by_current_markdown(cells: list[dict]) -> list[str]:
     ]
     for c in rows:
         cols = " | ".join(
-            f"{p['success_rate']:.1f} ({', '.join(f'{v:.1f}' for v in p['per_seed'])}) / "
-            f"{p['timeouts']}"
+            f"{_rate(p['success_rate'])} ({', '.join(map(_rate, p['per_seed']))}) / {p['timeouts']}"
             for p in c["success_by_current_x"]
         )
         lines.append(f"| {c['recipe']} | {c['scenario']} | {cols} |")
