@@ -292,3 +292,29 @@ def test_a_third_of_the_current_without_episodes_in_a_run(tmp_path):
     assert following["episodes"] == 100 and following["success_rate"] == pytest.approx(60.0)
     assert following["per_seed"] == [None, 60.0]
     assert "60.0 (-, 60.0) / 1" in (tmp_path / "out" / "table.md").read_text()
+
+
+def test_the_claims_on_success_at_200k_steps(tmp_path):
+    runs = [
+        fake_run(tmp_path, "sac", "sac", "compound", s, 90.0, early=e)
+        for s, e in enumerate((60.0, 62.0, 64.0))
+    ]
+    runs += [
+        fake_run(tmp_path, "sac", "sac", "noise", s, 60.0, early=e)
+        for s, e in enumerate((30.0, 35.0, 40.0))
+    ]
+    runs += [
+        fake_run(tmp_path, "ppo", "ppo", "compound", s, 80.0, early=e)
+        for s, e in enumerate((20.0, 40.0, 63.0))
+    ]
+    claims = {c["claim"]: c for c in write_table(runs, tmp_path / "out")["claims"]}
+    fastest = claims["compound learns fastest (sac: success at 200 k env steps)"]
+    assert fastest["compared"] == ["compound", "noise"]
+    assert fastest["difference_points"] == pytest.approx(27.0)
+    assert fastest["verdict"] == "holds: compound ahead" and fastest["p_value"] < 0.05
+    # ppo's seeds spread over 43 points: SAC's 20-point lead is not a finding
+    efficient = claims["SAC most sample-efficient (success at 200 k env steps, compound)"]
+    assert efficient["compared"] == ["sac", "ppo"] and efficient["recipe"] == "sac"
+    assert efficient["verdict"].startswith("not resolved") and efficient["ci95"][0] < 0
+    md = (tmp_path / "out" / "table.md").read_text()
+    assert "| sac | compound - noise +27.0 points (compound 62.0 %, noise 35.0 %) |" in md

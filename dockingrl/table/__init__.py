@@ -274,7 +274,15 @@ def markdown(table: dict) -> str:
         "|---|---|---|---|---|---|",
     ]
     for c in table["claims"]:
-        if "difference_points" in c:
+        if "compared" in c:
+            values = ", ".join(f"{k} {v:.1f} %" for k, v in sorted(c["values"].items()))
+            mine, rest = c["compared"]
+            lines.append(
+                f"| {c['claim']} | {c['recipe']} | {mine} - {rest} "
+                f"{c['difference_points']:+.1f} points ({values}) | {_fmt_ci(c['ci95'])} | - | "
+                f"{c['verdict']} |"
+            )
+        elif "difference_points" in c:
             paper = c.get("paper_difference_points")
             lines.append(
                 f"| {c['claim']} | {c['recipe']} | {c['difference_points']:+.1f} points | "
@@ -289,9 +297,6 @@ def markdown(table: dict) -> str:
                 + (f"= {c['p_value']:.2g}" if c["p_value"] > 0 else "< 1e-300")
                 + f" | - | {c['verdict']} |"
             )
-        else:
-            values = ", ".join(f"{k} {v:.1f} %" for k, v in sorted(c["values"].items()))
-            lines.append(f"| {c['claim']} | {c['best']} | {values} | - | - | - |")
     return "\n".join(lines) + "\n"
 
 
