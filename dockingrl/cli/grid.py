@@ -12,8 +12,8 @@ from dockingrl.provenance import command_line
 def cmd_grid(args: argparse.Namespace) -> int:
     from dockingrl.grid import load_grid, run_grid, select_trials
 
-    grid = load_grid(args.grid, out=args.out, collect=args.collect)
-    grid = select_trials(grid, args.only, args.threads)
+    whole = load_grid(args.grid, out=args.out, collect=args.collect)
+    grid = select_trials(whole, args.only, args.threads)
     if args.list:
         from dockingrl.grid import finished_summary
 
@@ -35,10 +35,16 @@ def cmd_grid(args: argparse.Namespace) -> int:
         print(f"{len(left)} of {len(states)} trials not finished; run the same command to resume")
         return 1 if any(states[n] == "failed" for n in left) else 3
     if args.table:
+        from dockingrl.grid import finished_summary
         from dockingrl.table import write_table
 
-        dirs = [grid.collect / t.name if grid.collect else grid.run_dir(t) for t in grid.trials]
-        write_table(dirs, args.table, prune_policies=bool(grid.collect), command=command_line())
+        # the table is the whole grid's, also when --only ran a part of it
+        unfinished = [t for t in whole.trials if finished_summary(whole, t) is None]
+        if unfinished:
+            print(f"table not written: {len(unfinished)} trials of the grid are not finished")
+            return 0
+        dirs = [whole.collect / t.name if whole.collect else whole.run_dir(t) for t in whole.trials]
+        write_table(dirs, args.table, prune_policies=bool(whole.collect), command=command_line())
         print(f"table written to {args.table}")
     return 0
 
@@ -67,7 +73,9 @@ def add_grid_commands(sub) -> None:
         "the same command resumes it: finished trials are kept, unfinished ones continue from "
         "their last checkpoint. Exit status: 0 all finished, 1 a trial failed, 3 trials left.",
     )
-    gr.add_argument("grid", help="a shipped grid name (table6, robust, robust_ft) or a grid YAML file")
+    gr.add_argument(
+        "grid", help="a shipped grid name (table6, robust, robust_ft) or a grid YAML file"
+    )
     gr.add_argument("--address", help="an existing Ray cluster to run on (default: local Ray)")
     gr.add_argument("--out", help="folder of the run folders (default: the grid file's)")
     gr.add_argument("--collect", help="folder for finished trials' small files (default: file's)")
