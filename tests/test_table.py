@@ -267,25 +267,13 @@ def test_a_seed_given_twice_or_budgets_that_differ_are_refused(tmp_path):
 
 
 def test_a_third_of_the_current_without_episodes_in_a_run(tmp_path):
+    splits = {
+        0: [(250, 80.0, 0), (250, 40.0, 3), (0, None, 0)],  # no following current in seed 0
+        1: [(200, 80.0, 0), (200, 40.0, 3), (100, 60.0, 1)],
+    }
     runs = [
-        fake_run(
-            tmp_path,
-            "sac",
-            "sac",
-            "noise",
-            0,
-            60.0,
-            by_current=[(250, 80.0, 0), (250, 40.0, 3), (0, None, 0)],
-        ),
-        fake_run(
-            tmp_path,
-            "sac",
-            "sac",
-            "noise",
-            1,
-            60.0,
-            by_current=[(200, 80.0, 0), (200, 40.0, 3), (100, 60.0, 1)],
-        ),
+        fake_run(tmp_path, "sac", "sac", "noise", seed, 60.0, by_current=split)
+        for seed, split in splits.items()
     ]
     table = write_table(runs, tmp_path / "out")
     following = table["cells"][0]["success_by_current_x"][2]

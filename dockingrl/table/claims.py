@@ -54,6 +54,18 @@ def difference_test(a, b) -> dict | None:
     return {"ci95": [float(ci.low), float(ci.high)], "p_value": float(res.pvalue)}
 
 
+def _verdict(test: dict | None, seeds: int, holds: str, fails: str) -> str:
+    """The verdict on a difference from its :func:`difference_test` (None: untested) and the
+    fewer seeds of its two sides: ``holds`` above 0, ``fails`` below, else not resolved."""
+    if test is None:
+        return "too few seeds to tell" if seeds < 2 else "not resolved: no spread in seeds"
+    if test["ci95"][0] > 0:
+        return holds
+    if test["ci95"][1] < 0:
+        return fails
+    return "not resolved: the interval contains 0"
+
+
 def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
     """The paper's claims about Table 6, measured on the cells: per recipe, compound against
     each other scenario (difference of mean success over seeds, with its interval), and which
@@ -70,15 +82,12 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
             diff = compound["success_mean"] - c["success_mean"]
             test = difference_test(compound["success_per_seed"], c["success_per_seed"])
             ci = None if test is None else test["ci95"]
-            if ci is None:
-                few = min(len(compound["seeds"]), len(c["seeds"])) < 2
-                verdict = "too few seeds to tell" if few else "not resolved: no spread in seeds"
-            elif ci[0] > 0:
-                verdict = "holds: compound higher"
-            elif ci[1] < 0:
-                verdict = "fails: compound lower"
-            else:
-                verdict = "not resolved: the interval contains 0"
+            verdict = _verdict(
+                test,
+                min(len(compound["seeds"]), len(c["seeds"])),
+                "holds: compound higher",
+                "fails: compound lower",
+            )
             paper_c = PAPER_RESULTS.get((compound["algo"], "compound"))
             paper_o = PAPER_RESULTS.get((compound["algo"], other))
             out.append(
@@ -135,15 +144,8 @@ def _ahead(claim: str, groups: dict[str, list[float]], claimed, recipe: str) -> 
     mine = max((k for k in groups if claimed(k)), key=means.get)
     rest = max((k for k in groups if not claimed(k)), key=means.get)
     test = difference_test(groups[mine], groups[rest])
-    if test is None:
-        few = min(len(groups[mine]), len(groups[rest])) < 2
-        verdict = "too few seeds to tell" if few else "not resolved: no spread in seeds"
-    elif test["ci95"][0] > 0:
-        verdict = f"holds: {mine} ahead"
-    elif test["ci95"][1] < 0:
-        verdict = f"fails: {rest} ahead"
-    else:
-        verdict = "not resolved: the interval contains 0"
+    seeds = min(len(groups[mine]), len(groups[rest]))
+    verdict = _verdict(test, seeds, f"holds: {mine} ahead", f"fails: {rest} ahead")
     return {
         "claim": claim,
         "recipe": recipe or mine,
