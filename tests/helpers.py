@@ -1,7 +1,9 @@
 """Small builders shared by the tests: an untrained actor, a training config sized for a smoke
 run, an env step that restarts onboard policies, an onboard policy and its exported program
-driven beside the env pipeline, and the repository's root for the files it commits."""
+driven beside the env pipeline, a finished run's small files for the table and the grid, and
+the repository's root for the files it commits."""
 
+import json
 from pathlib import Path
 
 import torch
@@ -133,3 +135,76 @@ def tiny_config(algo, scenario, tmp_path, **extra):
         run_name=f"{algo}_{scenario}",
         **{**TINY[algo], **COMMON, **extra},
     )
+
+
+def fake_run(
+    root: Path,
+    recipe: str,
+    algo: str,
+    scenario: str,
+    seed: int,
+    success: float,
+    early: float = 50.0,
+    by_current: list[tuple[int, float, int]] | None = None,
+    config: dict | None = None,
+    name: str = "",
+) -> Path:
+    """A finished run's small files in ``root/RECIPE__SCENARIO__sSEED`` (or ``root/name``):
+    config, summary, a 500-episode evaluation at ``success`` %, periodic evaluations with
+    ``early`` % at 210 k env steps, and a policy file."""
+    run = root / (name or f"{recipe}__{scenario}__s{seed}")
+    config = config or {}
+    run.mkdir(parents=True)
+    config = {"recipe": recipe, "algo": algo, "scenario": scenario, "seed": seed, **config}
+    (run / "config.json").write_text(json.dumps(config))
+    (run / "summary.json").write_text(
+        json.dumps(
+            {
+                "frames": 500_000,
+                "train_wall_clock_s": 3600.0,
+                "machine": "m",
+                "code": {"commit": "abc", "dirty": False},
+            }
+        )
+    )
+    docked = round(5 * success)
+    (run / "eval.json").write_text(
+        json.dumps(
+            {
+                "episodes": 500,
+                "success_rate": success,
+                # 20 contacts too fast besides the successes; they end sooner
+                "time_s": {"n": docked + 20, "mean": 40.0 + seed, "std": 2.0},
+                "time_success_s": {"n": docked, "mean": 42.0 + seed, "std": 2.0},
+                "total_reward": {"n": 500, "mean": 10.0 * seed, "std": 1.0},
+                **(
+                    {}
+                    if by_current is None
+                    else {
+                        "by_current_x": [
+                            {
+                                "oc_x": name,
+                                "range": [-0.3 + 0.2 * k, -0.1 + 0.2 * k],
+                                "episodes": n,
+                                "success_rate": rate,
+                                "failures": {"timeout": timeouts, "missed_funnel": 0},
+                            }
+                            for k, (name, (n, rate, timeouts)) in enumerate(
+                                zip(("opposing", "weak", "following"), by_current, strict=True)
+                            )
+                        ]
+                    }
+                ),
+            }
+        )
+    )
+    steps = [100_000, 190_000, 210_000, 500_000]
+    values = [10.0, 30.0, early, success]
+    rows = ["step,key,value"] + [
+        f"{s},{k},{v}"
+        for s, v in zip(steps, values, strict=True)
+        for k in ("eval/success_rate", "eval/total_reward", "eval/episode_time_s")
+    ]
+    (run / "curves.csv").write_text("\n".join(rows) + "\n")
+    (run / "policy.pt").write_bytes(b"x")
+    return run

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import fake_run
 
 from dockingrl.agents.config import SACConfig
 from dockingrl.grid import config_mismatch, load_grid, progress
@@ -213,29 +214,18 @@ def test_a_trial_resumes_with_the_threads_it_is_given(tmp_path, monkeypatch):
     assert calls[0]["resume"] == run_dir and calls[0]["overrides"] == {"threads": 2}
 
 
-def _finished(folder: Path, trial, success: float) -> None:
-    """The small files of a finished trial, as ``collect`` keeps them."""
-    folder.mkdir(parents=True)
-    config = {"recipe": trial.recipe, "algo": "ppo", "scenario": trial.scenario, "seed": trial.seed}
-    summary = {"frames": 2400, "train_wall_clock_s": 1.0, "machine": "m", "code": {}}
-    ev = {"episodes": 4, "success_rate": success, "time_s": {"n": 0, "mean": 0.0, "std": 0.0}}
-    ev["total_reward"] = {"n": 4, "mean": 0.0, "std": 1.0}
-    for name, data in (("config", config), ("summary", summary), ("eval", ev)):
-        (folder / f"{name}.json").write_text(json.dumps(data))
-
-
 def test_the_table_of_a_grid_run_in_part_is_the_whole_grids(tmp_path, capsys):
     pytest.importorskip("ray")
     from dockingrl.cli import main
 
     path = write_grid(tmp_path)
     grid = load_grid(path)
-    _finished(grid.collect / grid.trials[0].name, grid.trials[0], 50.0)
+    fake_run(grid.collect, "ppo", "ppo", "noise", 0, 50.0)  # grid.trials[0]
     table = tmp_path / "table"
     assert main(["grid", str(path), "--only", "*__s0", "--table", str(table)]) == 0
     assert "table not written: 1 trials" in capsys.readouterr().out
     assert not table.exists()  # a table of seed 0 alone would pass for the grid's
-    _finished(grid.collect / grid.trials[1].name, grid.trials[1], 70.0)
+    fake_run(grid.collect, "ppo", "ppo", "noise", 1, 70.0)
     assert main(["grid", str(path), "--only", "*__s0", "--table", str(table)]) == 0
     cells = json.loads((table / "table.json").read_text())["cells"]
     assert [(c["seeds"], c["success_mean"]) for c in cells] == [([0, 1], 60.0)]
