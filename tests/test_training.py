@@ -799,3 +799,32 @@ def test_the_summary_names_the_code_a_run_started_on_and_what_ran_it_before(
     )["summary"]
     assert again["code"] == later_code
     assert again["code_history"] == [first_code, later_code]
+
+
+def test_periodic_evaluations_log_success_per_third_of_the_current(
+    tmp_path, monkeypatch, short_episodes
+):
+    """Each periodic evaluation logs the success of each third of the along-axis current that
+    has episodes (eval/success_opposing, _weak, _following), the evaluation's own numbers; an
+    empty third is left out rather than logged as a rate."""
+    from dockingrl.training import selection
+
+    real_evaluate, thirds = selection.evaluate, iter([(20.0, None, 60.0), (30.0, 40.0, 50.0)])
+
+    def scripted(policy, scenario, num_episodes, **kwargs):
+        metrics = real_evaluate(policy, scenario, num_episodes, **kwargs)
+        if num_episodes == COMMON["eval_episodes"]:
+            for third, rate in zip(metrics["by_current_x"], next(thirds), strict=True):
+                third["success_rate"] = rate
+        return metrics
+
+    monkeypatch.setattr(selection, "evaluate", scripted)
+    cfg = tiny_config("ppo", "noise", tmp_path, total_steps=512, eval_every=256)
+    train(cfg, progress=False)
+    curves = read_curves(tmp_path / "ppo_noise")
+    assert [v for _, v in curves["eval/success_opposing"]] == [20.0, 30.0]
+    assert [v for _, v in curves["eval/success_weak"]] == [40.0]
+    assert [v for _, v in curves["eval/success_following"]] == [60.0, 50.0]
+    assert [s for s, _ in curves["eval/success_weak"]] == [
+        s for s, _ in curves["eval/success_rate"]
+    ][1:]

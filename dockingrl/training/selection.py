@@ -38,11 +38,17 @@ class Selection:
         self.last_success = m["success_rate"]
         if self.cfg.keep_best:
             self._keep_candidate(m["success_rate"])
-        return {
+        logs = {
             "eval/success_rate": m["success_rate"],
             "eval/total_reward": m["total_reward"]["mean"],
             "eval/episode_time_s": m["time_all_s"]["mean"],
         }
+        # success per third of the along-axis current (eval/success_opposing, _weak,
+        # _following): where a policy falls short of the paper, following currents decide it
+        for third in m["by_current_x"]:
+            if third["success_rate"] is not None:
+                logs[f"eval/success_{third['oc_x']}"] = third["success_rate"]
+        return logs
 
     @property
     def best(self) -> dict | None:
