@@ -194,6 +194,9 @@ def test_recipes_command_lists_and_shows(capsys):
     assert main(["recipes"]) == 0
     listing = capsys.readouterr().out
     assert all(name in listing for name in SIX)
+    # one column each for the names, the algorithms and the descriptions, however long a name
+    rows = listing.splitlines()
+    assert len({row.index(load_recipe(row.split()[0]).description) for row in rows}) == 1
     assert main(["recipes", "td3"]) == 0
     shown = capsys.readouterr().out
     assert "* updates_per_step = 0.1" in shown and "  policy_delay = 2" in shown

@@ -127,9 +127,11 @@ def cmd_recipes(args: argparse.Namespace) -> int:
             print(f" {mark} {key} = {value}")
         print("(* set by the recipe; the others are the paper's defaults)")
         return 0
-    for name in recipe_names():
+    names = recipe_names()
+    width = max(map(len, names), default=0)
+    for name in names:
         recipe = load_recipe(name)
-        print(f"{name:<10} {recipe.algo}  {recipe.description}")
+        print(f"{name:<{width}}  {recipe.algo:<3}  {recipe.description}")
     return 0
 
 
