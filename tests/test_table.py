@@ -236,3 +236,24 @@ def test_the_claims_on_success_at_200k_steps(tmp_path):
     assert efficient["verdict"].startswith("not resolved") and efficient["ci95"][0] < 0
     md = (tmp_path / "out" / "table.md").read_text()
     assert "| sac | compound - noise +27.0 points (compound 62.0 %, noise 35.0 %) |" in md
+
+
+def test_periodic_success_per_fifth_of_the_budget(tmp_path):
+    """Each seed's periodic evaluations averaged per fifth of its 500 k env steps (the fake
+    runs evaluate at 100, 190, 210 and 500 k: fifths 1, 2, 3 and 5), then over the seeds; a
+    fifth without an evaluation has no value, and a seed counts as still rising when its last
+    fifth is above every earlier one (not when it only ties them)."""
+    runs = [
+        fake_run(tmp_path, "td3", "td3", "noise", 0, 80.0, early=60.0),
+        fake_run(tmp_path, "td3", "td3", "noise", 1, 40.0, early=70.0),
+        fake_run(tmp_path, "td3", "td3", "filtered", 0, 30.0, early=30.0),
+    ]
+    table = write_table(runs, tmp_path / "out")
+    cells = {c["scenario"]: c["periodic_success_by_fifth"] for c in table["cells"]}
+    assert cells["filtered"]["seeds_still_rising"] == 0  # 10, 30, 30, -, 30
+    fifths = cells["noise"]
+    assert fifths["per_seed"] == [[10.0, 30.0, 60.0, None, 80.0], [10.0, 30.0, 70.0, None, 40.0]]
+    assert fifths["mean"] == [10.0, 30.0, 65.0, None, 60.0]
+    assert fifths["seeds_still_rising"] == 1
+    md = (tmp_path / "out" / "table.md").read_text()
+    assert "| td3 | noise | 10.0 | 30.0 | 65.0 | - | 60.0 | 1 of 2 |" in md

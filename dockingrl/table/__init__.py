@@ -102,6 +102,34 @@ def by_current(runs: list[dict]) -> list[dict] | None:
     return out
 
 
+def by_fifth(runs: list[dict]) -> dict | None:
+    """A cell's periodic success per fifth of its runs' env steps: in each fifth, the mean of
+    a seed's periodic evaluations there, then the mean over the seeds that have one; with the
+    number of seeds whose last fifth is above every earlier one (still rising when the budget
+    ended them).
+    None when no run has periodic evaluations."""
+    per_seed = []
+    for r in runs:
+        curve, total = r["curves"].get("eval/success_rate") or [], r["summary"]["frames"]
+        fifths = []
+        for k in range(5):
+            low, high = k * total / 5, (k + 1) * total / 5
+            values = [v for s, v in curve if low < s <= high or (k == 4 and s > high)]
+            fifths.append(float(np.mean(values)) if values else None)
+        if any(v is not None for v in fifths):
+            per_seed.append(fifths)
+    if not per_seed:
+        return None
+    means = []
+    for k in range(5):
+        values = [f[k] for f in per_seed if f[k] is not None]
+        means.append(float(np.mean(values)) if values else None)
+    last_best = sum(
+        f[4] is not None and all(v is None or f[4] > v for v in f[:4]) for f in per_seed
+    )
+    return {"mean": means, "per_seed": per_seed, "seeds_still_rising": int(last_best)}
+
+
 def cell(runs: list[dict]) -> dict:
     """One cell of the table from its seeds' runs (every per-seed list in the order of
     ``seeds``). Raises ``ValueError`` for a seed given twice or seeds of different budgets."""
@@ -146,6 +174,7 @@ def cell(runs: list[dict]) -> dict:
             "steps": [s for s, _ in early],
         },
         "success_by_current_x": by_current(runs),
+        "periodic_success_by_fifth": by_fifth(runs),
         "env_steps": [r["summary"]["frames"] for r in runs],
         "train_wall_clock_s": [r["summary"]["train_wall_clock_s"] for r in runs],
         "machine": sorted({r["summary"].get("machine", "") for r in runs}),
@@ -269,6 +298,7 @@ def markdown(table: dict) -> str:
         "",
     ]
     lines += by_current_markdown(table["cells"])
+    lines += by_fifth_markdown(table["cells"])
     lines += [
         "| claim | recipe | difference | 95 % CI | the paper's difference | verdict |",
         "|---|---|---|---|---|---|",
@@ -323,6 +353,28 @@ def by_current_markdown(cells: list[dict]) -> list[str]:
             for p in c["success_by_current_x"]
         )
         lines.append(f"| {c['recipe']} | {c['scenario']} | {cols} |")
+    return lines + [""]
+
+
+def by_fifth_markdown(cells: list[dict]) -> list[str]:
+    """The periodic success of each cell per fifth of its env steps, as markdown lines."""
+    rows = [c for c in cells if c.get("periodic_success_by_fifth")]
+    if not rows:
+        return []
+    lines = [
+        "Periodic success % per fifth of each run's env steps (a seed's periodic evaluations "
+        "in the fifth averaged, then the seeds); the last column counts the seeds whose last "
+        "fifth is above every earlier one, still rising when their budget ended:",
+        "",
+        "| recipe | scenario | 1st fifth | 2nd | 3rd | 4th | 5th | seeds still rising |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for c in rows:
+        f = c["periodic_success_by_fifth"]
+        lines.append(
+            f"| {c['recipe']} | {c['scenario']} | {' | '.join(map(_rate, f['mean']))} | "
+            f"{f['seeds_still_rising']} of {len(f['per_seed'])} |"
+        )
     return lines + [""]
 
 
