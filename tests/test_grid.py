@@ -229,3 +229,42 @@ def test_the_table_of_a_grid_run_in_part_is_the_whole_grids(tmp_path, capsys):
     assert main(["grid", str(path), "--only", "*__s0", "--table", str(table)]) == 0
     cells = json.loads((table / "table.json").read_text())["cells"]
     assert [(c["seeds"], c["success_mean"]) for c in cells] == [([0, 1], 60.0)]
+
+
+def test_more_trials_than_cores_share_them():
+    from dockingrl.grid.driver import task_cpus
+
+    assert task_cpus(cpus=16, threads=2, limit=8) == 2.0  # they fit: their threads each
+    assert task_cpus(cpus=2, threads=1, limit=3) == 0.666  # a share, just under 2/3
+    assert 3 * task_cpus(cpus=2, threads=1, limit=3) <= 2
+    assert task_cpus(cpus=16, threads=4, limit=6) == 2.0  # whole CPUs above one
+    assert 6 * task_cpus(cpus=16, threads=4, limit=6) <= 16
+
+
+def test_max_concurrent_above_the_cores_runs_every_trial_at_once(tmp_path, monkeypatch):
+    """One more trial than the machine has cores, with ``max_concurrent`` that high: each
+    trial starts before any ends (a local Ray of the machine's CPUs)."""
+    pytest.importorskip("ray")
+    from dockingrl.grid import driver
+
+    marks = tmp_path / "marks"
+    marks.mkdir()
+
+    def waits_for_all(trial, out, threads):  # pickled by value into the Ray worker
+        (marks / f"start_{trial.name}").touch()
+        deadline = time.time() + 60
+        while len(list(marks.glob("start_*"))) < n and time.time() < deadline:
+            time.sleep(0.1)
+        (marks / f"end_{trial.name}").touch()
+        return {"name": trial.name, "status": "finished", "error": ""}
+
+    n = (os.cpu_count() or 1) + 1
+    monkeypatch.setattr(driver, "run_trial", waits_for_all)
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    grid = load_grid(write_grid(tmp_path, seeds=tuple(range(n))))
+    grid.collect = None
+    started = time.time()
+    states = driver.run_grid(grid, max_concurrent=n, view_every=1)
+    assert set(states.values()) == {"finished"}
+    # every trial saw all n started before it ended, well before the 60 s a lone one waits
+    assert len(list(marks.glob("end_*"))) == n and time.time() - started < 50

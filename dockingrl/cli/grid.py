@@ -93,7 +93,13 @@ def add_grid_commands(sub) -> None:
         help="torch threads (and Ray CPUs) per trial (default: the grid file's); a trial may "
         "resume with another count",
     )
-    gr.add_argument("--max-concurrent", type=COUNT, default=None, help="trials at once")
+    gr.add_argument(
+        "--max-concurrent",
+        type=COUNT,
+        default=None,
+        help="trials at once (default: CPUs // threads); more share the cores, each slower, "
+        "ending together: more trials finished on a machine lent for a few hours (docs/grid.md)",
+    )
     gr.add_argument(
         "--hours",
         type=NON_NEGATIVE,

@@ -4,6 +4,7 @@ that lets the machine recover) and stops the running ones on SIGTERM or SIGINT."
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -29,6 +30,17 @@ MAX_RETRY_PAUSE_S = 3600.0
 class _Running:
     trial: Trial
     started: float
+
+
+def task_cpus(cpus: int, threads: int, limit: int) -> float:
+    """Ray CPUs each of ``limit`` trials at once declares on ``cpus`` CPUs: its ``threads``,
+    or, when more trials are asked for than the CPUs hold at that many threads each, an equal
+    share of the CPUs (a fraction below one, whole CPUs above, as Ray takes them), so that
+    they all run at once, sharing the cores."""
+    if limit * threads <= cpus:
+        return float(threads)
+    share = cpus / limit
+    return math.floor(share * 1000) / 1000 if share < 1 else float(math.floor(share))
 
 
 def _estimate(grid: Grid, trial: Trial) -> float:
@@ -58,7 +70,9 @@ def run_grid(
 
     Args:
         address: an existing Ray cluster (``ray.init(address=...)``); None starts a local one.
-        max_concurrent: trials at once (default: the cluster's CPUs // ``grid.threads``).
+        max_concurrent: trials at once (default: the cluster's CPUs // ``grid.threads``); more
+            than that share the CPUs (:func:`task_cpus`), each slower, and ``hours`` counts
+            each trial's estimate that much longer.
         hours: if > 0, start only trials expected to end within this many hours of the grid's
             start (:func:`_estimate`); the others stay pending for the next run.
         view_every: seconds between two views of the grid.
@@ -98,8 +112,12 @@ def run_grid(
         )
     cpus = int(ray.cluster_resources().get("CPU", 1))
     limit = max_concurrent or max(1, cpus // grid.threads)
+    # more trials at once than the CPUs hold share the cores, each slower by this factor
+    slower = max(1.0, limit * grid.threads / cpus)
     # one process per trial: it runs (and its summary records) the code of its own start
-    task = ray.remote(num_cpus=grid.threads, max_retries=0, max_calls=1)(run_trial)
+    task = ray.remote(num_cpus=task_cpus(cpus, grid.threads, limit), max_retries=0, max_calls=1)(
+        run_trial
+    )
     running: dict[Any, _Running] = {}
     ended = 0
     deaths: dict[str, int] = {}
@@ -120,7 +138,7 @@ def run_grid(
                 if stop_after and ended + len(running) >= stop_after:
                     break
                 left = hours * 3600 - (time.time() - started_at) if hours > 0 else float("inf")
-                fits = [t for t in todo if _estimate(grid, t) <= left]
+                fits = [t for t in todo if slower * _estimate(grid, t) <= left]
                 if not fits:
                     break
                 trial = fits[0]
