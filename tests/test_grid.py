@@ -229,6 +229,12 @@ def test_the_table_of_a_grid_run_in_part_is_the_whole_grids(tmp_path, capsys):
     assert main(["grid", str(path), "--only", "*__s0", "--table", str(table)]) == 0
     cells = json.loads((table / "table.json").read_text())["cells"]
     assert [(c["seeds"], c["success_mean"]) for c in cells] == [([0, 1], 60.0)]
+    # policies are kept unless pruning is asked for: other results may load any seed's
+    seeds = [grid.collect / f"ppo__noise__s{seed}" / "policy.pt" for seed in (0, 1)]
+    assert all(p.exists() for p in seeds)
+    argv = ["grid", str(path), "--table", str(table), "--prune-policies"]
+    assert main(argv) == 0
+    assert [p.exists() for p in seeds] == [False, True]  # the best seed's stays
 
 
 def test_more_trials_than_cores_share_them():

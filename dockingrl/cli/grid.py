@@ -44,7 +44,13 @@ def cmd_grid(args: argparse.Namespace) -> int:
             print(f"table not written: {len(unfinished)} trials of the grid are not finished")
             return 0
         dirs = [whole.collect / t.name if whole.collect else whole.run_dir(t) for t in whole.trials]
-        write_table(dirs, args.table, prune_policies=bool(whole.collect), command=command_line())
+        write_table(
+            dirs,
+            args.table,
+            prune_policies=args.prune_policies,
+            command=command_line(),
+            baseline=args.baseline,
+        )
         print(f"table written to {args.table}")
     return 0
 
@@ -120,6 +126,7 @@ def add_grid_commands(sub) -> None:
         metavar="DIR",
         help="when every trial is finished, write the table and figures there (dockingrl table)",
     )
+    _table_options(gr)
     gr.set_defaults(func=cmd_grid)
 
     tb = sub.add_parser(
@@ -128,15 +135,20 @@ def add_grid_commands(sub) -> None:
     )
     tb.add_argument("runs", nargs="+", help="run folders (unfinished ones are left out)")
     tb.add_argument("--out", default="results/table6", help="folder for table.md/json, figures")
-    tb.add_argument(
+    _table_options(tb)
+    tb.set_defaults(func=cmd_table)
+
+
+def _table_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
         "--prune-policies",
         action="store_true",
-        help="delete policy.pt from every run folder but the best seed's of each cell",
+        help="delete policy.pt from every run folder but the best seed's of each cell (off by "
+        "default: other results may load the other seeds' policies)",
     )
-    tb.add_argument(
+    parser.add_argument(
         "--baseline",
         metavar="EVAL_JSON",
         help="the managed surge controller's eval.json: test the claim that learned policies "
         "dock faster (e.g. results/managed_surge/eval.json)",
     )
-    tb.set_defaults(func=cmd_table)
