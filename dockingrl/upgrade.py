@@ -27,7 +27,14 @@ def upgrade_file(path: str | Path) -> str:
     }.get(kind)
     if upgrade is None:
         raise ArtifactError(f"{path}: not a dockingrl file (format {found!r})")
-    return upgrade(path)
+    try:
+        return upgrade(path)
+    except ArtifactError:
+        raise
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        # a file of a known format whose content is not what that format holds
+        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ArtifactError(f"{path}: a damaged {kind} file, not converted ({detail})") from None
 
 
 def upgrade_targets(path: str | Path) -> list[Path]:

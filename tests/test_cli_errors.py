@@ -129,12 +129,10 @@ def test_a_compound_policy_in_the_noise_scenario_says_both_layouts(capsys, compo
     assert str(compound_policy) in line
     assert "filtered_observation; 12 numbers" in line and "observation; 6 numbers" in line
     assert "'compound'" in line and "'noise'" in line
-    # the layout it was trained on passes the check: eval goes on to refuse an --out that is
-    # a file (before it runs any episode)
-    out = compound_policy.parent / "eval.json"
-    out.write_text("{}")
-    line = fails(capsys, [*argv, "--scenario", "compound", "--out", str(out)], 1)
-    assert line == f"dockingrl: error: --out {out}: a file, not a folder"
+    # the layout it was trained on passes the check: eval goes on to refuse a video file of
+    # an unknown kind (before it runs any episode)
+    line = fails(capsys, [*argv, "--scenario", "compound", "--video", "clip.avi"], 2)
+    assert "--video clip.avi: the suffix must be one of .gif, .mp4" in line
 
 
 def test_a_policy_whose_actor_does_not_read_its_layout_is_refused(tmp_path, capsys):
@@ -216,3 +214,102 @@ def test_the_process_exits_non_zero_with_one_line_and_no_traceback(tmp_path):
     assert run.returncode == 1, run.stderr
     assert run.stderr.count("\n") == 1 and run.stderr.startswith(f"dockingrl: error: {bad}")
     assert "Traceback" not in run.stderr and run.stdout == ""
+
+
+def test_use_filter_is_for_the_managed_surge_controller_in_a_filtered_scenario(
+    capsys, compound_policy
+):
+    line = fails(capsys, ["eval", "--episodes", "2", "--use-filter", "--quiet"], 2)
+    assert "--use-filter needs a scenario that runs the EKF" in line and "'noise'" in line
+    argv = ["stress", "--episodes", "2", "--levels", "L0", "--use-filter"]
+    assert "runs the EKF" in fails(capsys, [*argv, "--scenario", "no_noise"], 2)
+    argv = ["eval", "--policy", str(compound_policy), "--episodes", "2", "--use-filter"]
+    assert "--use-filter is for --policy managed_surge" in fails(capsys, argv, 2)
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["stress", "--device", "banana"], "argument --device: not a torch device: 'banana'"),
+        (["stress", "--seed", "-5"], "argument --seed: must be an integer >= 0"),
+        (["stress", "--levels", "L0,L0"], "--levels L0,L0: a level is named twice"),
+        (
+            ["train", "--algo", "sac", "--device", "banana"],
+            "SACConfig.device: expected cpu, cuda[:N] or mps",
+        ),
+        (["train", "--algo", "sac", "--seed", "-1"], "SACConfig.seed: must be >= 0 (got -1)"),
+        (
+            ["train", "--algo", "sac", "--run-name", "../up"],
+            "SACConfig.run_name: must be a folder name",
+        ),
+        (["train", "--resume", "x", "--recipe", "sac"], "--recipe does not apply to --resume"),
+        (["train", "--resume", "x", "--preset", "fast"], "--preset does not apply to --resume"),
+    ],
+)
+def test_devices_seeds_run_names_and_levels_are_checked_up_front(argv, says, capsys):
+    assert says in fails(capsys, argv, 2)
+
+
+def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for argv in (["stress", "--episodes", "2"], ["table", str(tmp_path)], ["learn-filter"]):
+        assert f"argument --out: {afile}: not a folder" in fails(
+            capsys, [*argv, "--out", str(afile)], 2
+        )
+    line = fails(capsys, ["eval", "--out", str(afile / "sub"), "--quiet"], 2)
+    assert f"({afile} is a file)" in line
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("", "not a readable run config"),
+        ("[1]", "not a run config (no algo of"),
+        ('{"algo": "foo"}', "not a run config (no algo of"),
+        ('{"algo": "sac", "lr": "abc"}', "sac option lr: expected <class 'float'>, got 'abc'"),
+    ],
+)
+def test_resuming_a_folder_with_a_broken_config_names_the_file(text, says, tmp_path, capsys):
+    (tmp_path / "config.json").write_text(text)
+    line = fails(capsys, ["train", "--resume", str(tmp_path)], 1)
+    assert str(tmp_path / "config.json") in line and says in line and "unexpected" not in line
+
+
+def test_a_run_that_cannot_start_leaves_no_folder_in_the_way_of_a_retry(tmp_path, capsys):
+    junk = tmp_path / "junk.pt"
+    junk.write_text("not a filter")
+    argv = ["train", "--algo", "sac", "--scenario", "filtered", "--out", str(tmp_path)]
+    fails(capsys, [*argv, "--run-name", "fp", "--filter-params", str(junk)], 1)
+    assert not (tmp_path / "fp").exists()
+    (tmp_path / "kept").mkdir()  # a folder that was there before keeps what it held
+    (tmp_path / "kept" / "notes.txt").write_text("mine")
+    fails(capsys, [*argv, "--run-name", "kept", "--filter-params", str(junk)], 1)
+    assert sorted(p.name for p in (tmp_path / "kept").iterdir()) == ["notes.txt", "run.lock"]
+
+
+def test_table_names_a_missing_folder_and_a_damaged_file(tmp_path, capsys):
+    from helpers import fake_run
+
+    line = fails(capsys, ["table", str(tmp_path / "typo"), "--out", str(tmp_path / "t")], 1)
+    assert f"{tmp_path / 'typo'}: no such run folder" in line
+    run = fake_run(tmp_path, "ppo", "ppo", "noise", 0, 50.0)
+    (run / "config.json").write_text("[1]")
+    line = fails(capsys, ["table", str(run), "--out", str(tmp_path / "t")], 1)
+    assert f"{run / 'config.json'}: not a run's config (no algo, scenario, seed)" in line
+    run = fake_run(tmp_path, "ppo", "ppo", "noise", 1, 50.0)
+    with (run / "curves.csv").open("a") as f:
+        f.write("garbage\n")
+    line = fails(capsys, ["table", str(run), "--out", str(tmp_path / "t")], 1)
+    assert f"{run / 'curves.csv'}, line" in line and "'garbage'" in line
+
+
+def test_upgrade_names_a_damaged_old_file_and_goes_on_to_the_next(tmp_path, capsys):
+    damaged, also = tmp_path / "a.pt", tmp_path / "b.pt"
+    for path in (damaged, also):  # an old filter file whose noises hold no parameters
+        old = {"format": "dockingrl.filter_params/1", "process_noise": {}, "measurement_noise": {}}
+        torch.save(old, path)
+    assert main(["upgrade", str(damaged), str(also)]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(": ")[2] for line in lines] == [str(damaged), str(also)]
+    assert all("a damaged dockingrl.filter_params file, not converted" in x for x in lines)

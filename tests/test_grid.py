@@ -64,6 +64,12 @@ def test_table6_is_the_papers_grid():
         ("overrides: {gamma: 3}\ngroups:\n  - recipes: [sac]\n", "gamma"),
         ("groups:\n  - recipes: [sac, sac]\n", "twice"),
         ("groups: []\n", "no trials"),
+        ("groups:\n  - recipes: [sac]\n    seeds: 3\n", "seeds must be a list"),
+        ("overrides: [1]\ngroups:\n  - recipes: [sac]\n", "overrides must be a mapping"),
+        ("groups:\n  - recipes: [sac]\n    overrides: 5\n", "group 0: overrides must be"),
+        ("groups:\n  - recipes: [sac]\n    estimate_s: abc\n", "estimate_s must be a number"),
+        ("groups:\n  - recipes: sac\n", "recipes must be a list of names"),
+        ("scenarios: compound\ngroups:\n  - recipes: [sac]\n", "scenarios must be a list"),
     ],
 )
 def test_bad_grid_files_are_refused_before_anything_runs(tmp_path, text, message):

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from dockingrl.agents.option_fields import check_ranges, documented, refuse
+from dockingrl.env.checks import available_device
 
 LOGGERS = ("wandb", "csv", "none")
 
@@ -98,9 +99,19 @@ class RunOptions:
                 "keep_candidates",
                 "select_episodes",
             ),
-            non_negative=("checkpoint_every", "time_budget_s"),
+            non_negative=("seed", "checkpoint_every", "time_budget_s"),
             flags=("fast_update",),
         )
+        if (
+            not isinstance(self.run_name, str)
+            or any(c in self.run_name for c in "/\\")
+            or (self.run_name in (".", ".."))
+        ):
+            refuse(self, "run_name", "must be a folder name, without / or \\")
+        try:
+            available_device(self.device, here=False)
+        except ValueError:
+            refuse(self, "device", "expected cpu, cuda[:N] or mps")
         if self.keep_candidates > 1 and not self.keep_best:
             refuse(
                 self, "keep_candidates", "chooses among the actors keep_best keeps: set keep_best"

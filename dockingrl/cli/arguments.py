@@ -69,27 +69,29 @@ POSITIVE = number(above=0.0)
 NON_NEGATIVE = number(minimum=0.0)
 
 
+def output_folder(text: str) -> str:
+    """An argparse type: a folder to write into, refused up front (not after the work) when it,
+    or a folder above it, is a file."""
+    from pathlib import Path
+
+    path = Path(text)
+    for above in (path, *path.parents):
+        if above.exists():
+            if not above.is_dir():
+                what = "" if above == path else f" ({above} is a file)"
+                raise argparse.ArgumentTypeError(f"{text}: not a folder{what}")
+            break
+    return text
+
+
 def torch_device(text: str) -> str:
     """An argparse type: a torch device this machine has (``cpu``, ``cuda``, ``cuda:1``)."""
-    import torch
+    from dockingrl.env.checks import available_device
 
     try:
-        parsed = torch.device(text)
-    except RuntimeError:
-        raise argparse.ArgumentTypeError(f"not a torch device: {text!r}") from None
-    if parsed.type == "cuda":
-        if not torch.cuda.is_available():
-            raise argparse.ArgumentTypeError(f"{text!r}: CUDA is not available on this machine")
-        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
-            raise argparse.ArgumentTypeError(
-                f"{text!r}: this machine has {torch.cuda.device_count()} CUDA device(s)"
-            )
-    elif parsed.type == "mps":
-        if not torch.backends.mps.is_available():
-            raise argparse.ArgumentTypeError(f"{text!r}: MPS is not available on this machine")
-    elif parsed.type != "cpu":
-        raise argparse.ArgumentTypeError(f"{text!r}: expected cpu, cuda[:N] or mps")
-    return text
+        return available_device(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def policy_from_args(args: argparse.Namespace) -> tuple:
@@ -100,9 +102,22 @@ def policy_from_args(args: argparse.Namespace) -> tuple:
     import torch
 
     from dockingrl.policies import load_policy
+    from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
     torch.set_num_threads(args.threads)
     policy, name, trained_scenario, options, trained = load_policy(
         args.policy, use_filter=args.use_filter, device=args.device
     )
-    return policy, name, args.scenario or trained_scenario or "noise", options, trained
+    scenario = args.scenario or trained_scenario or "noise"
+    if args.use_filter:
+        if name != "managed_surge":
+            raise UsageError(
+                "--use-filter is for --policy managed_surge (a trained policy "
+                "reads what its scenario gives it)"
+            )
+        if scenario not in FILTERED_OBSERVATION_KEYS:
+            raise UsageError(
+                f"--use-filter needs a scenario that runs the EKF (filtered or "
+                f"compound), not {scenario!r}"
+            )
+    return policy, name, scenario, options, trained

@@ -13,6 +13,7 @@ from dockingrl.cli.arguments import (
     NON_NEGATIVE_INT,
     POSITIVE,
     UsageError,
+    output_folder,
     policy_from_args,
     torch_device,
 )
@@ -51,8 +52,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(taken)
     env_kwargs = {"device": args.device, **options, **world}
     out = Path(args.out) if args.out else None
-    if out is not None and out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"--out {out}: a file, not a folder")
     if args.video:
         from dockingrl.render import VIDEO_SUFFIXES
 
@@ -159,7 +158,7 @@ def add_evaluation_commands(sub) -> None:
     )
     ev.add_argument("--episodes", type=COUNT, default=500, help="number of episodes (paper: 500)")
     ev.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="evaluation seed")
-    ev.add_argument("--out", default=None, help="results folder (JSON + PNG)")
+    ev.add_argument("--out", type=output_folder, default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
     ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")
     ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")

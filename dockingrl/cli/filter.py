@@ -19,6 +19,7 @@ from dockingrl.cli.arguments import (
     POSITIVE,
     UsageError,
     integer,
+    output_folder,
 )
 from dockingrl.env.levels import LEVELS
 from dockingrl.filter_comparison import ppo_filter_comparison
@@ -228,7 +229,7 @@ def cmd_filter_figure(args: argparse.Namespace) -> int:
 def add_filter_commands(sub) -> None:
     """Register the filter subcommands on the CLI's subparsers ``sub``."""
     ff = sub.add_parser("filter-figure", help="raw vs filtered vs true observation (Figure 5)")
-    ff.add_argument("--out", default="results/filter", help="results folder")
+    ff.add_argument("--out", type=output_folder, default="results/filter", help="results folder")
     ff.add_argument("--seed", type=NON_NEGATIVE_INT, default=0)
     ff.add_argument(
         "--start", type=FINITE, nargs=3, default=[-28.0, 5.0, 0.3], metavar=("X", "Y", "ALPHA")
@@ -248,7 +249,12 @@ def add_filter_commands(sub) -> None:
         help="nll: innovation likelihood (noisy data only); supervised: likelihood of "
         "the true state under the estimate (simulation only)",
     )
-    lf.add_argument("--out", default="runs/filter", help="folder for filter_params.pt, eval.json")
+    lf.add_argument(
+        "--out",
+        type=output_folder,
+        default="runs/filter",
+        help="folder for filter_params.pt, eval.json",
+    )
     lf.add_argument(
         "--level",
         choices=list(LEVELS),
@@ -270,7 +276,9 @@ def add_filter_commands(sub) -> None:
     ab = sub.add_parser(
         "filter-ablation", help="hand-tuned vs learned filters, nominal and mismatched sensor noise"
     )
-    ab.add_argument("--out", default="results/filter_ablation", help="results folder")
+    ab.add_argument(
+        "--out", type=output_folder, default="results/filter_ablation", help="results folder"
+    )
     ab.add_argument(
         "--mismatch",
         type=POSITIVE,
@@ -287,7 +295,9 @@ def add_filter_commands(sub) -> None:
     pc.add_argument("--filter-params", required=True, help="learned Q/R file (learn-filter)")
     pc.add_argument("--noise-scale", type=POSITIVE, default=2.0, help="env's range/bearing noise x")
     pc.add_argument("--total-steps", type=COUNT, default=2_000_000, help="env steps per agent")
-    pc.add_argument("--out", default="results/filter_ablation", help="results folder")
+    pc.add_argument(
+        "--out", type=output_folder, default="results/filter_ablation", help="results folder"
+    )
     pc.add_argument("--runs", default="runs", help="folder of the training runs")
     pc.add_argument(
         "--seeds",

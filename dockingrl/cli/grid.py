@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import argparse
 
-from dockingrl.cli.arguments import COUNT, NON_NEGATIVE, NON_NEGATIVE_INT, POSITIVE
+from dockingrl.cli.arguments import (
+    COUNT,
+    NON_NEGATIVE,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    output_folder,
+)
 from dockingrl.provenance import command_line
 
 
@@ -83,8 +89,14 @@ def add_grid_commands(sub) -> None:
         "grid", help="a shipped grid name (table6, robust, robust_ft) or a grid YAML file"
     )
     gr.add_argument("--address", help="an existing Ray cluster to run on (default: local Ray)")
-    gr.add_argument("--out", help="folder of the run folders (default: the grid file's)")
-    gr.add_argument("--collect", help="folder for finished trials' small files (default: file's)")
+    gr.add_argument(
+        "--out", type=output_folder, help="folder of the run folders (default: the grid file's)"
+    )
+    gr.add_argument(
+        "--collect",
+        type=output_folder,
+        help="folder for finished trials' small files (default: file's)",
+    )
     gr.add_argument(
         "--only",
         nargs="+",
@@ -134,7 +146,12 @@ def add_grid_commands(sub) -> None:
         help="Table 6 and Figures 6-8 from finished runs (cells: recipe x scenario, over seeds)",
     )
     tb.add_argument("runs", nargs="+", help="run folders (unfinished ones are left out)")
-    tb.add_argument("--out", default="results/table6", help="folder for table.md/json, figures")
+    tb.add_argument(
+        "--out",
+        type=output_folder,
+        default="results/table6",
+        help="folder for table.md/json, figures",
+    )
     _table_options(tb)
     tb.set_defaults(func=cmd_table)
 

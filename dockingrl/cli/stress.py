@@ -5,7 +5,15 @@ from __future__ import annotations
 import argparse
 import time
 
-from dockingrl.cli.arguments import COUNT, POSITIVE, policy_from_args
+from dockingrl.cli.arguments import (
+    COUNT,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    UsageError,
+    output_folder,
+    policy_from_args,
+    torch_device,
+)
 from dockingrl.env.levels import LEVELS
 from dockingrl.evaluation import describe_machine
 from dockingrl.policies import trained_filter_options
@@ -19,6 +27,8 @@ def cmd_stress(args: argparse.Namespace) -> int:
     if trained:
         options = trained_filter_options(trained, scenario, options)
     levels = tuple(args.levels.split(",")) if args.levels else tuple(LEVELS)
+    if len(set(levels)) < len(levels):
+        raise UsageError(f"--levels {args.levels}: a level is named twice")
     start = time.perf_counter()
     result = stress_ladder(
         policy,
@@ -60,7 +70,7 @@ def add_stress_command(sub) -> None:
     st.add_argument("--scenario", help="scenario (default: the policy's, or noise)")
     st.add_argument("--episodes", type=COUNT, default=1000, help="episodes a level")
     st.add_argument("--levels", help=f"comma-separated levels (default: {','.join(LEVELS)})")
-    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--seed", type=NON_NEGATIVE_INT, default=0)
     st.add_argument("--gate", type=POSITIVE, default=None, help="EKF chi-square gate (13.8)")
     st.add_argument(
         "--compensate-latency",
@@ -73,7 +83,9 @@ def add_stress_command(sub) -> None:
         help="the EKF estimates the current's error (filtered scenarios; not in the paper)",
     )
     st.add_argument("--use-filter", action="store_true", help="managed surge reads the EKF")
-    st.add_argument("--out", help="folder for stress.json, stress.md and stress.png")
-    st.add_argument("--device", default="cpu")
+    st.add_argument(
+        "--out", type=output_folder, help="folder for stress.json, stress.md and stress.png"
+    )
+    st.add_argument("--device", type=torch_device, default="cpu")
     st.add_argument("--threads", type=COUNT, default=1)
     st.set_defaults(func=cmd_stress)

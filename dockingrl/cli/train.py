@@ -79,6 +79,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     from dockingrl.training import TrainingInterrupted, train
 
     if args.resume:
+        for flag, value in (("--recipe", args.recipe), ("--preset", args.preset)):
+            if value is not None:
+                raise UsageError(f"{flag} does not apply to --resume: the run keeps its config")
         cfg, given = (
             None,
             {

@@ -55,3 +55,27 @@ def check_finite(entries: dict[str, torch.Tensor], step_count: torch.Tensor, whe
                 f"DockingEnv check_finite: {key!r} is not finite after {when} in env {env} "
                 f"at its step {step}: {value[env].tolist()}"
             )
+
+
+def available_device(text: str, *, here: bool = True) -> str:
+    """``text`` if it names a torch device (``cpu``, ``cuda``, ``cuda:1``, ``mps``) that this
+    machine has (``here``; else any such name); else a one-line ``ValueError`` that says why."""
+    try:
+        parsed = torch.device(text)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"not a torch device: {text!r}") from None
+    if parsed.type not in ("cpu", "cuda", "mps"):
+        raise ValueError(f"{text!r}: expected cpu, cuda[:N] or mps")
+    if not here:
+        return text
+    if parsed.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"{text!r}: CUDA is not available on this machine")
+        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+            raise ValueError(
+                f"{text!r}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            )
+    elif parsed.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise ValueError(f"{text!r}: MPS is not available on this machine")
+    return text

@@ -88,6 +88,23 @@ def grid_names() -> list[str]:
     return sorted(p.name[: -len(".yaml")] for p in root.iterdir() if p.name.endswith(".yaml"))
 
 
+def _mapping(value, where: str) -> dict:
+    """``value`` if it is a mapping of field names (None: an empty one), else a ValueError."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ValueError(f"{where} must be a mapping of config fields (got {value!r})")
+    return value
+
+
+def _names(value, where: str) -> list:
+    """``value`` if it is a list of names, else a ValueError (a bare string would be read
+    letter by letter)."""
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"{where} must be a list of names, e.g. [a, b] (got {value!r})")
+    return value
+
+
 def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | None = None) -> Grid:
     """The shipped grid named ``spec`` or the grid file at path ``spec``::
 
@@ -131,25 +148,35 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
     threads = data.get("threads", 1)
     if not isinstance(threads, int) or threads < 1:
         raise ValueError(f"grid {spec}: threads must be an integer >= 1 (got {threads!r})")
-    base = data.get("overrides") or {}
+    base = _mapping(data.get("overrides"), f"grid {spec}: overrides")
     trials: list[tuple[int, int, Trial]] = []
     for g, group in enumerate(data["groups"]):
         if not isinstance(group, dict) or set(group) - set(_GROUP_KEYS):
             raise ValueError(
                 f"grid {spec}: group {g} must be a mapping of {', '.join(_GROUP_KEYS)}"
             )
-        scenarios = group.get("scenarios", data.get("scenarios", list(SCENARIOS)))
+        where = f"grid {spec}: group {g}"
+        scenarios = _names(
+            group.get("scenarios", data.get("scenarios", list(SCENARIOS))), f"{where}: scenarios"
+        )
         for scenario in scenarios:
             if scenario not in SCENARIOS:
                 raise ValueError(f"grid {spec}: unknown scenario {scenario!r}")
         seeds = group.get("seeds", [0])
-        if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
-            raise ValueError(f"grid {spec}: group {g}: seeds must be integers >= 0")
-        overrides = {**base, **(group.get("overrides") or {})}
+        if (
+            not isinstance(seeds, list)
+            or not seeds
+            or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+        ):
+            raise ValueError(f"{where}: seeds must be a list of integers >= 0 (got {seeds!r})")
+        estimate = group.get("estimate_s", 0.0)
+        if isinstance(estimate, bool) or not isinstance(estimate, (int, float)) or estimate < 0:
+            raise ValueError(f"{where}: estimate_s must be a number >= 0 (got {estimate!r})")
+        overrides = {**base, **_mapping(group.get("overrides"), f"{where}: overrides")}
         if isinstance(overrides.get("init_from"), str) and overrides["init_from"]:
             # a run folder named from where the grid runs, wherever its trials' processes run
             overrides["init_from"] = str(Path(overrides["init_from"]).resolve())
-        for recipe in group.get("recipes") or []:
+        for recipe in _names(group.get("recipes") or [], f"{where}: recipes"):
             for seed in seeds:
                 for scenario in scenarios:
                     trial = Trial(
@@ -157,7 +184,7 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
                         scenario,
                         seed,
                         dict(overrides),
-                        float(group.get("estimate_s", 0.0)),
+                        float(estimate),
                     )
                     trials.append((seed, g, trial))
     names = [t.name for _, _, t in trials]

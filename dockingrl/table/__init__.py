@@ -31,22 +31,44 @@ SCENARIO_ORDER = ("no_noise", "noise", "filtered", "compound")
 EARLY_STEPS = 200_000
 
 
+#: what the table reads of each run's files: the keys each must hold
+_REQUIRED = {
+    "config": ("algo", "scenario", "seed"),
+    "summary": ("frames", "train_wall_clock_s"),
+    "eval": ("episodes", "success_rate", "time_s", "total_reward"),
+}
+_CURVE_KEYS = ("eval/success_rate", "eval/total_reward", "eval/episode_time_s")
+
+
 def _read(run_dir: Path) -> dict | None:
-    """A finished run's config, summary, final evaluation and success curve, or None."""
-    try:
-        run = {
-            name: json.loads((run_dir / f"{name}.json").read_text())
-            for name in ("config", "summary", "eval")
-        }
-    except (OSError, ValueError):
-        return None
+    """A finished run's config, summary, final evaluation and success curve; None for a run
+    folder whose run has not finished (no ``summary.json`` or ``eval.json`` yet). A folder that
+    does not exist, or a file that is not what a run writes, is a one-line ``ValueError``."""
+    if not run_dir.is_dir():
+        raise ValueError(f"{run_dir}: no such run folder")
+    run: dict = {}
+    for name, keys in _REQUIRED.items():
+        path = run_dir / f"{name}.json"
+        if not path.exists():
+            return None
+        try:
+            value = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ValueError(f"{path}: unreadable ({exc})") from None
+        missing = [k for k in keys if not isinstance(value, dict) or k not in value]
+        if missing:
+            raise ValueError(f"{path}: not a run's {name} (no {', '.join(missing)})")
+        run[name] = value
     curves: dict[str, list[tuple[int, float]]] = {}
     path = run_dir / "curves.csv"
     if path.exists():
-        for line in path.read_text().splitlines()[1:]:
-            step, key, value = line.split(",")
-            if key in ("eval/success_rate", "eval/total_reward", "eval/episode_time_s"):
-                curves.setdefault(key, []).append((int(step), float(value)))
+        for number, line in enumerate(path.read_text().splitlines()[1:], start=2):
+            try:
+                step, key, value = line.split(",")
+                if key in _CURVE_KEYS:
+                    curves.setdefault(key, []).append((int(step), float(value)))
+            except ValueError:
+                raise ValueError(f"{path}, line {number}: not step,key,value: {line!r}") from None
     run["curves"] = curves
     run["dir"] = run_dir
     return run

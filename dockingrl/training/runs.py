@@ -4,10 +4,12 @@ with the few settings a resumed run may change."""
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import fields
 from pathlib import Path
 
-from dockingrl.agents.config import CONFIGS, TrainConfig
+from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
+from dockingrl.env.checks import available_device
 from dockingrl.io import write_json
 from dockingrl.training.logger import RunLogger
 from dockingrl.training.run_folder import RunLock, default_run_name
@@ -53,10 +55,8 @@ def train(
         run_dir = Path(resume)
         if not (run_dir / "config.json").exists():
             raise FileNotFoundError(f"{run_dir} holds no run (no config.json) to resume")
-        saved = json.loads((run_dir / "config.json").read_text())
+        saved = _saved_config(run_dir / "config.json")
         cls = CONFIGS[saved["algo"]]
-        names = {f.name for f in fields(cls)}
-        saved = {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items() if k in names}
         overrides = dict(overrides or {})
         if overrides.get("algo") == saved["algo"]:
             del overrides["algo"]
@@ -76,6 +76,7 @@ def train(
             )
         cfg = cls(**{**saved, **overrides})
         cfg.validate()
+        available_device(cfg.device)
     elif overrides:
         raise ValueError("overrides apply to a resumed run only; set them in cfg")
     else:
@@ -85,22 +86,61 @@ def train(
                 "init_replay takes the replay buffer of the run that init_from names: "
                 "give --init-from RUN_DIR"
             )
+        available_device(cfg.device)
         run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
+        if run_dir.exists() and not run_dir.is_dir():
+            raise NotADirectoryError(f"{run_dir}: a file, not a run folder")
+        new_folder = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
         if resume is None:
             if (run_dir / "config.json").exists():
                 raise FileExistsError(f"{run_dir} already holds a run: pass --resume {run_dir}")
             write_json(run_dir / "config.json", cfg.to_dict())
-        return _train_locked(cfg, run_dir, resume, progress, command, overrides or {})
+            try:
+                started = _start(cfg, run_dir, resume, progress, command)
+            except BaseException:
+                # a run that could not start leaves nothing that a second try would trip on
+                if new_folder:
+                    shutil.rmtree(run_dir, ignore_errors=True)
+                else:
+                    (run_dir / "config.json").unlink(missing_ok=True)
+                raise
+        else:
+            started = _start(cfg, run_dir, resume, progress, command)
+        return _train_locked(*started, cfg, run_dir, resume, overrides or {})
 
 
-def _train_locked(cfg, run_dir, resume, progress, command, overrides) -> dict:
+def _saved_config(path: Path) -> dict:
+    """The config fields that a run folder's ``config.json`` saved, checked: a one-line
+    ``ValueError`` naming the file when it is not a run's config."""
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable run config ({exc})") from None
+    if not isinstance(saved, dict) or saved.get("algo") not in CONFIGS:
+        raise ValueError(f"{path}: not a run config (no algo of {', '.join(CONFIGS)})")
+    names = {f.name for f in fields(CONFIGS[saved["algo"]])}
+    saved = {k: v for k, v in saved.items() if k in names}
+    try:
+        check_types(saved["algo"], {k: v for k, v in saved.items() if k not in ("algo", "recipe")})
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    return {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items()}
+
+
+def _start(cfg, run_dir, resume, progress, command) -> tuple[Trainer, bool]:
+    """The run's trainer and whether it was restored from a checkpoint (when resumed), else
+    warm-started where ``init_from`` asks."""
     trainer = Trainer(cfg, run_dir, progress=progress, command=command)
     # a run that stopped before its first checkpoint starts again from its config
     restored = resume is not None and trainer.load_checkpoint()
     if not restored and cfg.init_from:
         trainer.warm_start()
+    return trainer, restored
+
+
+def _train_locked(trainer, restored, cfg, run_dir, resume, overrides) -> dict:
     if resume is not None:
         if restored and "total_steps" in overrides:
             # the last batch may overshoot the total: only a new total below it is refused
