@@ -233,6 +233,9 @@ def test_use_filter_is_for_the_managed_surge_controller_in_a_filtered_scenario(
         (["stress", "--device", "banana"], "argument --device: not a torch device: 'banana'"),
         (["stress", "--seed", "-5"], "argument --seed: must be an integer >= 0"),
         (["stress", "--levels", "L0,L0"], "--levels L0,L0: a level is named twice"),
+        (["export", "--policy", "managed_surge", "--out", "a.pt2"], "only a trained policy.pt"),
+        (["export", "--policy", "p.pt", "--out", "a.txt"], "--out a.txt: a torch.export program"),
+        (["export", "--policy", "p.pt", "--out", "."], "--out .: a folder; give the program"),
         (
             ["train", "--algo", "sac", "--device", "banana"],
             "SACConfig.device: expected cpu, cuda[:N] or mps",

@@ -125,7 +125,7 @@ def test_bad_recipe_files_are_one_line_errors(tmp_path, text, message):
     assert "\n" not in str(info.value)
 
 
-def test_a_recipe_starts_from_its_base(tmp_path):
+def test_a_recipe_starts_from_its_base(tmp_path, monkeypatch):
     robust = load_recipe("sac-robust")
     assert robust.algo == "sac"
     assert robust.config == {**load_recipe("sac").config, "train_level": "L5"}
@@ -133,6 +133,11 @@ def test_a_recipe_starts_from_its_base(tmp_path):
     mine.write_text("base: sac-robust\nconfig:\n  lr: 0.001\n")
     cfg = load_recipe(mine).make_config()
     assert (cfg.lr, cfg.train_level, cfg.action_repeat, cfg.recipe) == (0.001, "L5", 4, "mine")
+    (tmp_path / "sub").mkdir()  # a base file is read beside the recipe, wherever it runs
+    (tmp_path / "sub" / "second.yaml").write_text("base: ../mine.yaml\nconfig:\n  gamma: 0.9\n")
+    monkeypatch.chdir("/")
+    cfg = load_recipe(tmp_path / "sub" / "second.yaml").make_config()
+    assert (cfg.lr, cfg.gamma, cfg.train_level) == (0.001, 0.9, "L5")
     loop = tmp_path / "loop.yaml"
     loop.write_text(f"base: {loop}\n")
     with pytest.raises(ValueError, match="nest deeper than 8"):

@@ -127,6 +127,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     """``dockingrl export``: a policy and its filter as a torch.export program."""
     from dockingrl.onboard import OnboardPolicy, export_onboard
 
+    if args.policy == "managed_surge":
+        raise UsageError("--policy managed_surge: only a trained policy.pt is exported")
+    out = Path(args.out)
+    if out.is_dir():
+        raise UsageError(
+            f"--out {out}: a folder; give the program's file, e.g. {out / 'policy.pt2'}"
+        )
+    if out.suffix != ".pt2":
+        raise UsageError(f"--out {out}: a torch.export program's file ends in .pt2")
     policy = OnboardPolicy.from_file(args.policy, filter_params=args.filter_params)
     path = export_onboard(policy, args.out, batch=args.batch)
     print(

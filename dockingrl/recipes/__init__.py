@@ -8,7 +8,8 @@ listed by :func:`recipe_names` or the path of a YAML file of the same form::
 
     algo: sac                 # sac, td3 or ppo
     description: one line     # optional
-    base: sac                 # optional: a recipe whose fields this one starts from
+    base: sac                 # optional: a recipe whose fields this one starts from (a
+                              # name, or a file: beside this one, else from the working folder)
     config:                   # fields of the algorithm's config
       num_envs: 16
       hidden: [256, 256]
@@ -97,7 +98,11 @@ def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
         raise ValueError(f"recipe {spec}: unknown key(s) {', '.join(map(str, extra))}")
     base = None
     if data.get("base") is not None:
-        base = load_recipe(str(data["base"]), _depth + 1)
+        base_spec = str(data["base"])
+        beside = Path(spec).parent / base_spec
+        if spec not in recipe_names() and base_spec not in recipe_names() and beside.is_file():
+            base_spec = str(beside)  # a base file is found beside the recipe first
+        base = load_recipe(base_spec, _depth + 1)
         if data.get("algo", base.algo) != base.algo:
             raise ValueError(
                 f"recipe {spec}: algo {data['algo']!r} differs from its base's ({base.algo!r})"
