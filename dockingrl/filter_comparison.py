@@ -3,9 +3,32 @@ mismatched sensor noise (``dockingrl ppo-filter-comparison``)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from dockingrl.io import atomic_write, write_json
+
+
+def _train_or_resume(cfg, run_dir: Path, command: str) -> dict:
+    """The run of ``cfg`` in ``run_dir``: read back when finished, resumed when interrupted,
+    trained otherwise; a folder holding a run of another config is refused."""
+    from dockingrl.training import train
+
+    if not (run_dir / "config.json").exists():
+        return train(cfg, progress=False, command=command)
+    saved = json.loads((run_dir / "config.json").read_text())
+    wanted = json.loads(json.dumps(cfg.to_dict()))
+    differ = sorted(k for k in set(saved) | set(wanted) if saved.get(k) != wanted.get(k))
+    if differ:
+        raise ValueError(
+            f"{run_dir} holds a run of another config ({', '.join(differ)} differ): "
+            "remove it or give another --runs folder"
+        )
+    if (run_dir / "summary.json").exists() and (run_dir / "eval.json").exists():
+        return {
+            name: json.loads((run_dir / f"{name}.json").read_text()) for name in ("summary", "eval")
+        } | {"run_dir": str(run_dir)}
+    return train(None, resume=run_dir, progress=False, command=command)
 
 
 def ppo_filter_comparison(
@@ -26,8 +49,9 @@ def ppo_filter_comparison(
     in ``runs_dir``; tabulate their final 500-episode evaluations (``ppo_mismatch.{json,md}`` in
     ``out``) and return the table's text."""
     from dockingrl.agents.config import make_config
-    from dockingrl.training import train
+    from dockingrl.transforms.params import read_filter_params
 
+    read_filter_params(filter_params)  # a bad file is refused before hours of training
     extra = extra or {}
     rows, results = [], {"command": command, "seeds": list(seeds), "agents": {}}
     for name, params in (("hand-tuned (Tables 1-2)", ""), ("learned", filter_params)):
@@ -49,7 +73,7 @@ def ppo_filter_comparison(
                 seed=seed,
                 **extra,
             )
-            result = train(cfg, progress=False, command=command)
+            result = _train_or_resume(cfg, Path(runs_dir) / run_name, command)
             final, summary = result["eval"], result["summary"]
             runs[seed] = {
                 "success_rate": final["success_rate"],

@@ -6,6 +6,7 @@ import torch
 
 from dockingrl.cli import main as cli_main
 from dockingrl.env import DockingConfig
+from dockingrl.filter_comparison import ppo_filter_comparison
 from dockingrl.filter_learning import (
     FilterFit,
     evaluate_filter,
@@ -231,6 +232,21 @@ def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path)
     ]
     table = (tmp_path / "res" / "ppo_mismatch.md").read_text()
     assert "| learned: " in table and "mean of 2" in table
+    # run again: the finished runs are read back, not trained again, and give the same table
+    argv = ["ppo-filter-comparison", "--filter-params", str(params), "--total-steps", "128"]
+    argv += ["--out", str(tmp_path / "res"), "--runs", str(tmp_path / "runs"), "--seeds", "0", "1"]
+    policies = sorted((tmp_path / "runs").glob("*/policy.pt"))
+    stamps = [p.stat().st_mtime_ns for p in policies]
+    assert cli_main(argv + ["--set", *tiny]) == 0
+    assert [p.stat().st_mtime_ns for p in policies] == stamps
+    assert json.loads((tmp_path / "res" / "ppo_mismatch.json").read_text()) == report
+    with pytest.raises(SystemExit, match="holds a run of another config \\(epochs differ\\)"):
+        cli_main(argv + ["--set", *tiny[:3], "epochs=2", *tiny[4:]])
+    junk = tmp_path / "junk.pt"
+    junk.write_text("not a filter")
+    with pytest.raises(ValueError, match="junk.pt"):
+        ppo_filter_comparison(str(junk), tmp_path / "res2", runs_dir=str(tmp_path / "runs2"))
+    assert not (tmp_path / "runs2").exists()  # refused before any training
     with pytest.raises(SystemExit, match="hidden"):
         cli_main(["ppo-filter-comparison", "--filter-params", str(params), "--set", "hidden=3x"])
     with pytest.raises(SystemExit, match="seed"):
