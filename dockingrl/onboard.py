@@ -240,7 +240,8 @@ class OnboardPolicy(nn.Module):
     ) -> OnboardPolicy:
         """Load a policy saved by training (``policy.pt``); its scenario, its
         ``--observe-current``, ``--observe-command`` and ``--action-repeat`` and, unless
-        ``filter_params`` is given, its training ``--filter-params`` come with it.
+        ``filter_params`` is given, its training ``--filter-params`` come with it
+        (``filter_params="none"``: Table 1's hand-tuned filter instead).
         ``config`` describes the vehicle (default: the paper's): with a policy trained with
         ``--compensate-latency`` the filter compensates ``config``'s USBL latency, not the
         latency of the level the policy was trained at."""
@@ -249,7 +250,10 @@ class OnboardPolicy(nn.Module):
         actor, info = load_policy(path, device=device)
         options = pipeline_options(info["config"])
         check_env_layout(info, info["scenario"], options)
-        params = filter_params if filter_params is not None else training_filter(info)
+        if filter_params is None:
+            params = training_filter(info)
+        else:
+            params = None if str(filter_params) == "none" else filter_params
         filter_options = options.pop("ekf_kwargs", {})
         policy = cls(
             actor,

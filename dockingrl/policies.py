@@ -75,7 +75,8 @@ def evaluation_world(
     if params == "none":
         params = None
     elif isinstance(params, str) and not Path(params).is_file():
-        raise FileNotFoundError(f"--filter-params {params!r}: no such file")
+        what = "a folder, not a file" if Path(params).is_dir() else "no such file"
+        raise FileNotFoundError(f"--filter-params {params!r}: {what}")
     if params is not None:
         kwargs["filter_params"] = params
     line = f"as the policy was trained: {', '.join(taken)}" if taken else ""

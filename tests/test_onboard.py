@@ -71,6 +71,33 @@ def test_onboard_policy_loads_learned_filter_params_with_their_range_sigma(tmp_p
         td = env.step_and_maybe_reset(td)[1]
 
 
+def test_onboard_policy_from_file_takes_the_training_filter_unless_told_none(tmp_path):
+    """A policy file carries the learned filter it was trained with; ``filter_params="none"``
+    runs Table 1's hand-tuned filter instead (``dockingrl export --filter-params none``)."""
+    from dockingrl.agents.config import make_config
+    from dockingrl.agents.saving import save_policy
+    from dockingrl.scenarios import make_filter
+    from dockingrl.transforms.params import read_filter_params
+
+    ekf = make_filter(DockingConfig())
+    table_1 = ekf.measurement_noise.log_std.detach().clone()
+    with torch.no_grad():
+        ekf.measurement_noise.log_std[:2] += 0.7  # a learned USBL
+    ekf.save_filter_params(tmp_path / "q_r.pt")
+    env = make_env("noise", 1, seed=0)
+    cfg = make_config("sac", "paper", scenario="filtered", hidden=(32, 32))
+    actor = random_actor("sac", "filtered")
+    payload = read_filter_params(tmp_path / "q_r.pt")
+    path = save_policy(tmp_path / "p.pt", actor, cfg, 6, env.action_spec, 30.0, payload)
+
+    def usbl_log_std(**kwargs):
+        policy = OnboardPolicy.from_file(path, **kwargs)
+        return policy.step.ekf.measurement_noise.log_std.detach()
+
+    torch.testing.assert_close(usbl_log_std()[:2], table_1[:2] + 0.7)
+    torch.testing.assert_close(usbl_log_std(filter_params="none"), table_1)
+
+
 def test_onboard_policy_from_a_saved_policy_file():
     """It commands what the saved actor commands in the env of its scenario, read from the
     file, and starts over after a reset."""

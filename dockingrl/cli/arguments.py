@@ -84,6 +84,24 @@ def output_folder(text: str) -> str:
     return text
 
 
+def existing_file(text: str) -> str:
+    """An argparse type: a file to read, refused up front when it is missing or a folder."""
+    from pathlib import Path
+
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: a folder, not a file")
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    return text
+
+
+def filter_params_file(text: str) -> str:
+    """An argparse type: a learned Q/R file (``dockingrl learn-filter``) to read, or ``none``
+    for Table 1's hand-tuned filter."""
+    return text if text == "none" else existing_file(text)
+
+
 def torch_device(text: str) -> str:
     """An argparse type: a torch device this machine has (``cpu``, ``cuda``, ``cuda:1``)."""
     from dockingrl.env.checks import available_device

@@ -13,6 +13,7 @@ from dockingrl.cli.arguments import (
     NON_NEGATIVE_INT,
     POSITIVE,
     UsageError,
+    filter_params_file,
     output_folder,
     policy_from_args,
     torch_device,
@@ -193,6 +194,7 @@ def add_evaluation_commands(sub) -> None:
     )
     ev.add_argument(
         "--filter-params",
+        type=filter_params_file,
         default=None,
         help="learned Q/R file for the EKF; default: the agent's training file (if any), "
         "'none': Table 1's filter",
@@ -230,5 +232,11 @@ def add_evaluation_commands(sub) -> None:
     ex.add_argument("--policy", required=True, help="policy.pt written by training")
     ex.add_argument("--out", required=True, help="the program's file (.pt2)")
     ex.add_argument("--batch", type=COUNT, default=1, help="vehicles per call")
-    ex.add_argument("--filter-params", default=None, help="learned Q/R file for the EKF")
+    ex.add_argument(
+        "--filter-params",
+        type=filter_params_file,
+        default=None,
+        help="learned Q/R file for the EKF; default: the agent's training file (if any), "
+        "'none': Table 1's filter",
+    )
     ex.set_defaults(func=cmd_export)

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from dockingrl.cli.arguments import (
     NON_NEGATIVE_INT,
     POSITIVE,
     UsageError,
+    existing_file,
     integer,
     output_folder,
 )
@@ -100,13 +102,6 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         help="which sigmas of R are fitted: all six, the USBL's range and bearing (the "
         "heading, DVL and IMU keep Table 2's, their data-sheet values) or none",
     )
-    parser.add_argument(
-        "--context-epochs",
-        type=COUNT,
-        default=None,
-        help="filter-ablation: passes of the context fits, after the constant fit they start "
-        "from (default: --epochs)",
-    )
 
 
 def _check_fit_arguments(args: argparse.Namespace) -> None:
@@ -149,6 +144,10 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
     """``dockingrl learn-filter``: one filter fitted and scored on held-out rollouts."""
     from dockingrl.training import RunLogger
 
+    if args.whiteness and args.objective != "nll":
+        raise UsageError(
+            f"--whiteness penalises the innovations of the nll objective, not {args.objective!r}"
+        )
     _check_fit_arguments(args)
     torch.set_num_threads(args.threads)
     out = Path(args.out)
@@ -195,11 +194,33 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_figure_start(start: list[float], current: list[float]) -> None:
+    """Refuse a start the AUV cannot reach the DS from in one episode (farther than its top
+    speed covers before truncation) and a current it cannot make headway against (a
+    component above its top speed)."""
+    from dockingrl.env import DockingConfig
+
+    c = DockingConfig()
+    reach = c.max_velocity * c.dt * c.max_steps
+    x, y, _ = start
+    if math.hypot(x, y) > reach:
+        raise UsageError(
+            f"--start ({x:g}, {y:g}) lies more than {reach:g} m from the DS, farther than "
+            "the AUV travels in one episode"
+        )
+    if max(abs(v) for v in current) > c.max_velocity:
+        raise UsageError(
+            f"--current components must be within +-{c.max_velocity:g} m/s (the AUV's top "
+            f"speed), got {current[0]:g} {current[1]:g}"
+        )
+
+
 def cmd_filter_figure(args: argparse.Namespace) -> int:
     """One episode of the managed surge controller (on the EKF estimate) in the compound
     scenario: raw, filtered and true rho, psi, alpha (Figure 5)."""
     from dockingrl.plots import plot_filter_episode
 
+    _check_figure_start(args.start, args.current)
     episode = filter_episode(args.start, args.current, seed=args.seed)
     seconds = episode["seconds"]
     out = Path(args.out)
@@ -286,13 +307,22 @@ def add_filter_commands(sub) -> None:
         help="scale of the env's range and bearing noise in the mismatched condition",
     )
     _add_fit_arguments(ab)
+    ab.add_argument(
+        "--context-epochs",
+        type=COUNT,
+        default=None,
+        help="passes of the context fits, after the constant fit they start from "
+        "(default: --epochs)",
+    )
     ab.set_defaults(func=cmd_filter_ablation)
 
     pc = sub.add_parser(
         "ppo-filter-comparison",
         help="PPO compound agents with the hand-tuned and a learned filter, mismatched noise",
     )
-    pc.add_argument("--filter-params", required=True, help="learned Q/R file (learn-filter)")
+    pc.add_argument(
+        "--filter-params", type=existing_file, required=True, help="learned Q/R file (learn-filter)"
+    )
     pc.add_argument("--noise-scale", type=POSITIVE, default=2.0, help="env's range/bearing noise x")
     pc.add_argument("--total-steps", type=COUNT, default=2_000_000, help="env steps per agent")
     pc.add_argument(
@@ -322,8 +352,6 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     500-episode evaluations (``ppo_mismatch.{json,md}``)."""
     from dockingrl.agents.config import parse_overrides
 
-    if not Path(args.filter_params).is_file():
-        raise FileNotFoundError(f"--filter-params {args.filter_params!r}: no such file")
     fixed = {"scenario", "total_steps", "range_noise_scale", "bearing_noise_scale"}
     fixed |= {"filter_params", "out", "run_name", "logger", "seed"}
     try:
