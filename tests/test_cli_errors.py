@@ -100,6 +100,7 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["filter-figure", "--current", "0", "-1.5"], "within +-1 m/s (the AUV's top speed)"),
         (["learn-filter", "--objective", "supervised", "--whiteness", "1"], "nll objective"),
         (["learn-filter", "--context-epochs", "3"], "unrecognized arguments: --context-epochs"),
+        (["stress", "--policy", "managed_surge", "--levels", "L0,L9"], "unknown level 'L9'"),
         (["grid", "table6", "--max-concurrent", "0"], "argument --max-concurrent: must be"),
         (["grid", "table6", "--view-every", "0"], "argument --view-every: must be > 0"),
         (["grid", "table6", "--hours", "-1"], "argument --hours: must be >= 0"),
@@ -122,6 +123,14 @@ def test_a_bad_command_line_is_one_usage_line(argv, says, capsys):
     known = argv[:1] != ["evaluate"]
     prog = f"dockingrl {argv[0]}" if argv and known else "dockingrl"
     assert line.endswith(f"(see {prog} --help)")  # the help of the command that refused it
+
+
+def test_train_into_a_file_is_one_line_and_makes_nothing(capsys, tmp_path):
+    (tmp_path / "f").write_text("")
+    for out in ("f", "f/runs"):
+        argv = ["train", "--algo", "sac", "--out", str(tmp_path / out), "--logger", "none"]
+        assert f"not a folder ({tmp_path / 'f'} is a file)" in fails(capsys, argv, 1)
+    assert [p.name for p in tmp_path.iterdir()] == ["f"]
 
 
 def test_unknown_recipe_is_one_line(capsys, tmp_path):

@@ -27,6 +27,11 @@ def cmd_stress(args: argparse.Namespace) -> int:
     if trained:
         options = trained_filter_options(trained, scenario, options)
     levels = tuple(args.levels.split(",")) if args.levels else tuple(LEVELS)
+    unknown = [level for level in levels if level not in LEVELS]
+    if unknown:
+        raise UsageError(
+            f"--levels {args.levels}: unknown level {unknown[0]!r}; valid: {', '.join(LEVELS)}"
+        )
     if len(set(levels)) < len(levels):
         raise UsageError(f"--levels {args.levels}: a level is named twice")
     start = time.perf_counter()

@@ -90,6 +90,9 @@ def train(
         run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
         if run_dir.exists() and not run_dir.is_dir():
             raise NotADirectoryError(f"{run_dir}: a file, not a run folder")
+        above = next((p for p in run_dir.parents if p.exists()), None)
+        if above is not None and not above.is_dir():
+            raise NotADirectoryError(f"out {cfg.out}: not a folder ({above} is a file)")
         new_folder = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
