@@ -68,6 +68,14 @@ def write_json(path: str | Path, data: Any) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_text(text + "\n"))
 
 
+def file_in_the_way(folder: str | Path) -> Path | None:
+    """The file that stops ``folder`` from being made or written into: ``folder`` itself, or
+    the nearest existing path above it, when that is not a folder; ``None`` otherwise."""
+    path = Path(folder)
+    found = next((p for p in (path, *path.parents) if p.exists()), None)
+    return found if found is not None and not found.is_dir() else None
+
+
 def _jsonable(value: Any) -> Any:
     if hasattr(value, "tolist"):
         return value.tolist()

@@ -74,13 +74,12 @@ def output_folder(text: str) -> str:
     or a folder above it, is a file."""
     from pathlib import Path
 
-    path = Path(text)
-    for above in (path, *path.parents):
-        if above.exists():
-            if not above.is_dir():
-                what = "" if above == path else f" ({above} is a file)"
-                raise argparse.ArgumentTypeError(f"{text}: not a folder{what}")
-            break
+    from dockingrl.io import file_in_the_way
+
+    blocker = file_in_the_way(text)
+    if blocker is not None:
+        what = "" if blocker == Path(text) else f" ({blocker} is a file)"
+        raise argparse.ArgumentTypeError(f"{text}: not a folder{what}")
     return text
 
 

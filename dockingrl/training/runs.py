@@ -10,7 +10,7 @@ from pathlib import Path
 
 from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
 from dockingrl.env.checks import available_device
-from dockingrl.io import write_json
+from dockingrl.io import file_in_the_way, write_json
 from dockingrl.training.logger import RunLogger
 from dockingrl.training.run_folder import RunLock, default_run_name
 from dockingrl.training.stopping import TrainingInterrupted
@@ -88,11 +88,11 @@ def train(
             )
         available_device(cfg.device)
         run_dir = Path(cfg.out) / (cfg.run_name or default_run_name(cfg))
-        if run_dir.exists() and not run_dir.is_dir():
+        blocker = file_in_the_way(run_dir)
+        if blocker == run_dir:
             raise NotADirectoryError(f"{run_dir}: a file, not a run folder")
-        above = next((p for p in run_dir.parents if p.exists()), None)
-        if above is not None and not above.is_dir():
-            raise NotADirectoryError(f"out {cfg.out}: not a folder ({above} is a file)")
+        if blocker is not None:
+            raise NotADirectoryError(f"out {cfg.out}: not a folder ({blocker} is a file)")
         new_folder = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir):
