@@ -110,6 +110,34 @@ def test_currents_outside_the_range_count_in_the_outer_thirds():
     assert summarize(outcomes, 0.2, 0.3, entrance_x=0.5)["timeouts_beyond_station"] == 0
 
 
+def test_episodes_are_split_by_the_strength_of_the_lateral_current():
+    n = 5
+    outcomes = {
+        "success": torch.tensor([True, False, True, False, True]),
+        "docked": torch.tensor([True, True, True, False, True]),
+        "contact_score": torch.tensor([0.5, 0.4, 0.9, 0.0, 0.8]),
+        "contact_speed": torch.tensor([0.2, 0.45, 0.1, 0.0, 0.25]),
+        "steps": torch.full((n,), 100),
+        "total_reward": torch.zeros(n),
+        # |oc_y|: 0.05 weak; 0.15 moderate; -0.25, 0.2 and -0.35 (beyond the range) strong
+        "ocean_current": torch.tensor(
+            [[0.0, 0.05], [0.0, -0.25], [0.3, 0.15], [0, 0.2], [0, -0.35]]
+        ),
+        "end": torch.tensor([[-0.5, 0.0, 0.0]] * n),
+    }
+    split = summarize(outcomes, 0.2, 0.3, (-0.3, 0.3))["by_current_y"]
+    assert [t["abs_oc_y"] for t in split] == ["weak", "moderate", "strong"]
+    assert [t["range"] for t in split] == [[0.0, 0.1], [0.1, 0.2], [0.2, 0.3]]
+    assert [t["episodes"] for t in split] == [1, 1, 3]
+    assert [t["success_rate"] for t in split] == [100.0, 100.0, pytest.approx(100 / 3)]
+    assert split[2]["failures"] == {"timeout": 1, "missed_funnel": 0, "too_fast": 1}
+    # an asymmetric range splits |oc_y| up to its larger bound
+    wide = summarize(outcomes, 0.2, 0.3, (-0.6, 0.3))["by_current_y"]
+    assert [t["range"] for t in wide] == [[0.0, 0.2], [0.2, 0.4], [0.4, 0.6]]
+    assert [t["episodes"] for t in wide] == [2, 3, 0]
+    assert wide[2]["success_rate"] is None
+
+
 def test_success_map_and_plots(tmp_path):
     result = success_map(ManagedSurgePolicy(), "noise", cells=3, trials=2, seed=1)
     grid = [-0.3, 0.0, 0.3]

@@ -422,6 +422,16 @@ def test_stress_command_writes_table_json_and_plot(tmp_path, capsys):
     assert (tmp_path / "stress.png").stat().st_size > 0
     table = (tmp_path / "stress.md").read_text()
     assert "| L5 | sensors, current and dynamics |" in table
+    for row in result["levels"]:
+        strong = row["by_current_y"][2]
+        assert strong["abs_oc_y"] == "strong"
+        cell = (
+            f"{strong['success_rate']:.1f} ({strong['episodes']})"
+            if strong["episodes"]
+            else "n/a (0)"
+        )
+        (line,) = [x for x in table.splitlines() if x.startswith(f"| {row['name']} |")]
+        assert line.endswith(f"| {cell} |")
     assert "| L0 |" in capsys.readouterr().out
     nominal = evaluate(ManagedSurgePolicy(), "noise", 3, seed=0)
     row = result["levels"][0]

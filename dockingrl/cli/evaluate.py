@@ -80,9 +80,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
     thirds = ", ".join(
         f"{t['oc_x']} {t['success_rate']:.1f} %" for t in metrics["by_current_x"] if t["episodes"]
     )
+    lateral = ", ".join(
+        f"{t['abs_oc_y']} {t['success_rate']:.1f} %"
+        for t in metrics["by_current_y"]
+        if t["episodes"]
+    )
     print(
-        f"success by oc_x: {thirds}; timeouts ending beyond the station: "
-        f"{metrics['timeouts_beyond_station']}"
+        f"success by oc_x: {thirds}; by |oc_y|: {lateral}; timeouts ending beyond the "
+        f"station: {metrics['timeouts_beyond_station']}"
     )
     if out is not None:
         write_json(out / "eval.json", metrics)

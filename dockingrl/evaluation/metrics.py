@@ -64,7 +64,13 @@ def summarize(
       of ``current_range``: ``opposing`` (the lowest third: the current carries the AUV away
       from the station), ``weak`` (the middle third) and ``following`` (the highest: it
       carries the AUV towards the station); a current outside the range counts in the outer
-      third on its side, so the three add up to the totals. ``oc_y`` is not split.
+      third on its side, so the three add up to the totals.
+    - ``by_current_y``: the same split by ``|oc_y|`` at the thirds of ``[0, max |range|]``:
+      ``weak``, ``moderate`` and ``strong`` lateral currents (the last takes any larger
+      ``|oc_y|``). A lateral current drifts the AUV sideways at the contact, where a strong
+      one leaves little of the speed limit for the approach. Both splits read the true current
+      at the episode's start; one that varies in time (``current_time_constant``) moves
+      away from it during the episode.
 
     Standard deviations are population ones (``ddof = 0``).
     """
@@ -84,20 +90,39 @@ def summarize(
         "failures": _failures(docked, score, speed, speed_limit),
         "timeouts_beyond_station": int((~docked & (outcomes["end"][:, 0] > entrance_x)).sum()),
         "by_current_x": _by_current_x(outcomes, speed_limit, current_range),
+        "by_current_y": _by_current_y(outcomes, speed_limit, current_range),
     }
 
 
 def _by_current_x(outcomes, speed_limit, current_range) -> list[dict]:
     low, high = current_range
     edges = [round(low + (high - low) * k / 3, 12) for k in range(4)]
-    oc_x = outcomes["ocean_current"][:, 0]
-    masks = (oc_x < edges[1], (oc_x >= edges[1]) & (oc_x < edges[2]), oc_x >= edges[2])
+    return _split(outcomes, outcomes["ocean_current"][:, 0], edges, "oc_x", speed_limit)
+
+
+def _by_current_y(outcomes, speed_limit, current_range) -> list[dict]:
+    top = max(abs(v) for v in current_range)
+    edges = [round(top * k / 3, 12) for k in range(4)]
+    return _split(outcomes, outcomes["ocean_current"][:, 1].abs(), edges, "abs_oc_y", speed_limit)
+
+
+#: the names of the thirds of each split of :func:`summarize`
+SPLIT_NAMES = {
+    "oc_x": ("opposing", "weak", "following"),
+    "abs_oc_y": ("weak", "moderate", "strong"),
+}
+
+
+def _split(outcomes, value, edges, key, speed_limit) -> list[dict]:
+    """Episodes, success and failures per third of ``value`` between ``edges`` (4 numbers);
+    a value outside them counts in the outer third on its side."""
+    masks = (value < edges[1], (value >= edges[1]) & (value < edges[2]), value >= edges[2])
     thirds = []
-    for k, (name, mask) in enumerate(zip(("opposing", "weak", "following"), masks, strict=True)):
+    for k, (name, mask) in enumerate(zip(SPLIT_NAMES[key], masks, strict=True)):
         n = int(mask.sum())
         thirds.append(
             {
-                "oc_x": name,
+                key: name,
                 "range": [edges[k], edges[k + 1]],
                 "episodes": n,
                 "success_rate": 100.0 * float(outcomes["success"][mask].double().mean())
