@@ -444,6 +444,29 @@ def test_stress_command_writes_table_json_and_plot(tmp_path, capsys):
     )
 
 
+def test_stress_table_marks_a_ladder_without_the_lateral_split():
+    from dockingrl.stress import stress_table
+
+    failures = {"timeout": 1, "missed_funnel": 0, "too_fast": 2}
+    row = {"name": "L0", "description": "the paper's task", "success_rate": 70.0, "episodes": 10}
+    strong = {"abs_oc_y": "strong", "range": [0.2, 0.3], "episodes": 4, "success_rate": 50.0}
+    empty = {**strong, "episodes": 0, "success_rate": None}
+    other = {"episodes": 3, "success_rate": 100.0, "range": [0.0, 0.1]}
+    weaker = [{**other, "abs_oc_y": "weak"}, {**other, "abs_oc_y": "moderate"}]
+    result = {"scenario": "noise", "episodes": 10, "seed": 0, "gate": None}
+    levels = [
+        {**row, "failures": failures},
+        {**row, "name": "L1", "failures": failures, "by_current_y": [*weaker, strong]},
+        {**row, "name": "L2", "failures": failures, "by_current_y": [*weaker, empty]},
+    ]
+    lines = stress_table({**result, "levels": levels}).splitlines()
+    assert [x.rsplit("|", 2)[1].strip() for x in lines if x.startswith("| L")] == [
+        "-",
+        "50.0 (4)",
+        "n/a (0)",
+    ]
+
+
 def test_get_and_set_state_carry_the_realism_state():
     from dockingrl.env.levels import level_config
 
