@@ -97,28 +97,25 @@ def summarize(
 def _by_current_x(outcomes, speed_limit, current_range) -> list[dict]:
     low, high = current_range
     edges = [round(low + (high - low) * k / 3, 12) for k in range(4)]
-    return _split(outcomes, outcomes["ocean_current"][:, 0], edges, "oc_x", speed_limit)
+    names = ("opposing", "weak", "following")
+    return _split(outcomes, outcomes["ocean_current"][:, 0], edges, "oc_x", names, speed_limit)
 
 
 def _by_current_y(outcomes, speed_limit, current_range) -> list[dict]:
     top = max(abs(v) for v in current_range)
     edges = [round(top * k / 3, 12) for k in range(4)]
-    return _split(outcomes, outcomes["ocean_current"][:, 1].abs(), edges, "abs_oc_y", speed_limit)
+    names = ("weak", "moderate", "strong")
+    value = outcomes["ocean_current"][:, 1].abs()
+    return _split(outcomes, value, edges, "abs_oc_y", names, speed_limit)
 
 
-#: the names of the thirds of each split of :func:`summarize`
-SPLIT_NAMES = {
-    "oc_x": ("opposing", "weak", "following"),
-    "abs_oc_y": ("weak", "moderate", "strong"),
-}
-
-
-def _split(outcomes, value, edges, key, speed_limit) -> list[dict]:
-    """Episodes, success and failures per third of ``value`` between ``edges`` (4 numbers);
-    a value outside them counts in the outer third on its side."""
+def _split(outcomes, value, edges, key, names, speed_limit) -> list[dict]:
+    """Episodes, success and failures per third of ``value`` between ``edges`` (4 numbers),
+    each third named ``names[k]`` under ``key``; a value outside them counts in the outer
+    third on its side."""
     masks = (value < edges[1], (value >= edges[1]) & (value < edges[2]), value >= edges[2])
     thirds = []
-    for k, (name, mask) in enumerate(zip(SPLIT_NAMES[key], masks, strict=True)):
+    for k, (name, mask) in enumerate(zip(names, masks, strict=True)):
         n = int(mask.sum())
         thirds.append(
             {
