@@ -1,0 +1,62 @@
+"""The ``td3-200k`` recipe: what it changes from ``td3``, that the committed runs of
+``results/agents/td3_200k/`` are its config, and a smoke run of ``dockingrl train --recipe
+td3-200k``."""
+
+import json
+from pathlib import Path
+
+import pytest
+from test_recipes import TINY, TINY_ALGO
+
+from dockingrl.cli import main
+from dockingrl.recipes import load_recipe, recipe_names
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNS = ROOT / "results" / "agents" / "td3_200k"
+#: where a run went and what it logged to, and the recipe named on its command line: the runs
+#: were made with ``--recipe td3`` and the options ``td3-200k`` now sets
+RUN_FIELDS = {"out", "run_name", "logger", "recipe"}
+
+
+def test_td3_200k_is_td3_with_one_update_per_env_step_and_layer_normed_critics():
+    assert "td3-200k" in recipe_names()
+    fast, base = load_recipe("td3-200k").make_config(), load_recipe("td3").make_config()
+    changed = {
+        k: v for k, v in fast.to_dict().items() if base.to_dict()[k] != v and k != "recipe"
+    }
+    assert changed == {
+        "total_steps": 200_000,
+        "updates_per_step": 1.0,
+        "critic_layer_norm": True,
+        "fast_update": True,
+        "eval_every": 10_000,
+        "threads": 1,
+    }
+    assert (fast.algo, fast.recipe) == ("td3", "td3-200k")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_committed_runs_are_the_recipe(seed):
+    run = json.loads((RUNS / f"seed{seed}" / "config.json").read_text())
+    recipe = load_recipe("td3-200k").make_config(scenario="compound", seed=seed).to_dict()
+    recipe = json.loads(json.dumps(recipe))  # as config.json holds it (lists, not tuples)
+    differing = {k for k in recipe.keys() | run.keys() if recipe.get(k) != run.get(k)}
+    assert differing <= RUN_FIELDS, differing - RUN_FIELDS
+    summary = json.loads((RUNS / f"seed{seed}" / "summary.json").read_text())
+    assert summary["frames"] <= 200_000 + recipe["frames_per_batch"]
+    assert summary["success_rate"] == json.loads(
+        (RUNS / f"seed{seed}" / "eval.json").read_text()
+    )["success_rate"]
+
+
+def test_train_with_the_td3_200k_recipe(tmp_path, short_episodes):
+    argv = ["train", "--recipe", "td3-200k", "--out", str(tmp_path), "--run-name", "r"]
+    assert main([*argv, *TINY, *TINY_ALGO["td3"]]) == 0
+    config = json.loads((tmp_path / "r" / "config.json").read_text())
+    assert (config["recipe"], config["critic_layer_norm"], config["updates_per_step"]) == (
+        "td3-200k",
+        True,
+        1.0,
+    )
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["frames"] >= 1600 and summary["updates"] > 0
