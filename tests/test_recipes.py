@@ -149,7 +149,7 @@ def test_an_unknown_recipe_name_lists_the_shipped_ones():
         load_recipe("no-such-recipe")
 
 
-@pytest.mark.parametrize("name", SIX)
+@pytest.mark.parametrize("name", [*SIX, "td3-200k"])
 def test_train_with_every_recipe(name, tmp_path, capsys, short_episodes):
     algo = load_recipe(name).algo
     argv = [
