@@ -6,12 +6,14 @@ one EKF step on the same inputs, the recorded-data filter on the same recordings
 
 import pytest
 import torch
+from test_recipes import TINY, TINY_ALGO
 from test_training import tiny_config
 
 from dockingrl import make_env
 from dockingrl.agents.saving import load_policy
 from dockingrl.env import DockingConfig, DockingEnv
 from dockingrl.filter_learning import FilterFit, fit_filter, record_rollouts, run_filter
+from dockingrl.recipes import load_recipe, recipe_names
 from dockingrl.scenarios import make_filter
 from dockingrl.training import train
 
@@ -126,3 +128,25 @@ def test_the_harshest_stress_level_with_the_estimating_filter_steps_on_cuda():
     obs = data["next", "observation"]
     assert obs.is_cuda and bool(torch.isfinite(obs).all())
     assert bool((data["next", "sensor_age"] > 0).any())
+
+
+@pytest.mark.parametrize("name", recipe_names())
+def test_every_recipe_trains_on_cuda(name, tmp_path, short_episodes):
+    import json
+
+    from dockingrl.cli import main as cli_main
+
+    algo = load_recipe(name).algo
+    argv = ["train", "--recipe", name, "--scenario", "compound", "--out", str(tmp_path)]
+    argv += ["--run-name", "r", *TINY, *TINY_ALGO[algo], "--device", "cuda"]
+    if load_recipe(name).config.get("init_replay"):  # a fine-tune: first the run it starts from
+        assert (
+            cli_main([*argv[:2], algo, *argv[3:8], "base", *argv[9:], "--checkpoint-every", "800"])
+            == 0
+        )
+        argv += ["--init-from", str(tmp_path / "base")]
+    assert cli_main(argv) == 0
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["updates"] > 0 and "GPU" in summary["machine"]
+    policy, info = load_policy(tmp_path / "r" / "policy.pt", device="cpu")
+    assert info["algo"] == algo
