@@ -137,13 +137,14 @@ def test_every_recipe_trains_on_cuda(name, tmp_path, short_episodes):
     from dockingrl.cli import main as cli_main
 
     algo = load_recipe(name).algo
-    argv = ["train", "--recipe", name, "--scenario", "compound", "--out", str(tmp_path)]
-    argv += ["--run-name", "r", *TINY, *TINY_ALGO[algo], "--device", "cuda"]
+
+    def train_args(recipe: str, run_name: str) -> list[str]:
+        argv = ["train", "--recipe", recipe, "--scenario", "compound", "--out", str(tmp_path)]
+        return [*argv, "--run-name", run_name, *TINY, *TINY_ALGO[algo], "--device", "cuda"]
+
+    argv = train_args(name, "r")
     if load_recipe(name).config.get("init_replay"):  # a fine-tune: first the run it starts from
-        assert (
-            cli_main([*argv[:2], algo, *argv[3:8], "base", *argv[9:], "--checkpoint-every", "800"])
-            == 0
-        )
+        assert cli_main([*train_args(algo, "base"), "--checkpoint-every", "800"]) == 0
         argv += ["--init-from", str(tmp_path / "base")]
     assert cli_main(argv) == 0
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
