@@ -1,11 +1,17 @@
-"""The README and docs/: every relative link and every repository path they name exists, and
-the README stays short."""
+"""The README and docs/: every relative link and every repository path they name exists, every
+``dockingrl`` command they quote (and those of results/) parses, and the README stays short."""
 
+import functools
 import glob
 import re
+import shlex
 from pathlib import Path
 
 import pytest
+import torch
+
+from dockingrl.cli import build_parser
+from dockingrl.cli.arguments import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
 README_MAX_LINES = 150
@@ -20,6 +26,10 @@ HEADING = re.compile(r"^#{1,6}\s+(.+?)\s*#*\s*$", re.M)
 
 def documents() -> list[Path]:
     return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def documents_with_commands() -> list[Path]:
+    return [*documents(), *sorted((ROOT / "results").rglob("*.md"))]
 
 
 def prose(text: str) -> str:
@@ -83,6 +93,106 @@ def broken_paths(doc: Path) -> list[str]:
         f"{doc.name}: `{path}` does not exist"
         for path in code_paths(doc.read_text())
         if not all(exists(ROOT / p) for p in expand(path))
+    ]
+
+
+#: a word that stands for a value the reader fills in (``--seed S``, ``--policy P``, ``...``);
+#: ``<a run>`` stands for one too
+PLACEHOLDER = re.compile(r"^(\.\.\.|[A-Z][A-Z_]*)$")
+
+
+def fenced_commands(text: str) -> list[str]:
+    """The ``dockingrl`` command lines of the fenced code blocks of ``text``: continuation lines
+    joined, a leading ``$ `` or ``python -m`` and a trailing ``# comment`` dropped."""
+    commands = []
+    for block in FENCE.finditer(text):
+        for line in block.group(0).replace("\\\n", " ").splitlines():
+            line = " ".join(re.sub(r"\s#\s.*$", "", line).split()).removeprefix("$ ")
+            line = line.removeprefix("python -m ")
+            if line.startswith("dockingrl "):
+                commands.append(line)
+    return commands
+
+
+@functools.cache
+def parser():
+    """``dockingrl``'s parser (built once: parsing leaves it as it was)."""
+    return build_parser()
+
+
+def inline_commands(text: str) -> list[str]:
+    """The inline code spans of ``text`` that name a ``dockingrl`` subcommand, whole commands or
+    a mention of one option (``dockingrl eval --policy``)."""
+    names = set(parser()._subparsers._group_actions[0].choices)
+    spans = (" ".join(span.replace("\\", " ").split()) for _, span in CODE.findall(prose(text)))
+    return [s for s in spans if s.startswith("dockingrl ") and s.split()[1] in names]
+
+
+#: what the parser says of a mention that leaves out an option's value or a required option
+INCOMPLETE = ("expected one argument", "the following arguments are required")
+
+
+def unparsable(command: str, *, mention: bool = False) -> str | None:
+    """Why ``dockingrl``'s own parser refuses ``command`` (one line), or None. A command with a
+    placeholder word is not judged; ``--device cuda`` is judged as on a machine with a GPU. A
+    ``mention`` may leave out values and required options, not misspell an option."""
+    argv = shlex.split(command)[1:]
+    if any(PLACEHOLDER.match(word) for word in argv) or "--help" in argv or "<" in command:
+        return None
+    try:
+        _, extra = parser().parse_known_args(argv)
+    except UsageError as exc:
+        if mention and any(text in str(exc) for text in INCOMPLETE):
+            return None
+        return f"{command}: {exc}"
+    return f"{command}: unrecognized {' '.join(extra)}" if extra else None
+
+
+def broken_commands(doc: Path) -> list[str]:
+    """The commands of ``doc``'s code blocks and inline code that ``dockingrl`` would refuse,
+    with why."""
+    text = doc.read_text()
+    judged = [unparsable(c) for c in fenced_commands(text)]
+    judged += [unparsable(c, mention=True) for c in inline_commands(text)]
+    return [why for why in judged if why]
+
+
+@pytest.mark.parametrize("doc", documents_with_commands(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_command_in_a_document_parses(doc, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    assert broken_commands(doc) == []
+
+
+def test_the_command_check_finds_an_unknown_option_and_a_bad_value(tmp_path):
+    doc = tmp_path / "doc.md"
+    doc.write_text(
+        "`dockingrl train --no-such-option` and `dockingrl eval --policy` in prose\n"
+        "```bash\n$ dockingrl train --recipe sac --scenario compound \\\n  --seed 0  # one run\n"
+        "python -m dockingrl train --seed zero\n"
+        "dockingrl eval --policy P --episodes 10\n"
+        "dockingrl train --init-from runs/<a sac run>\n"
+        "dockingrl stress --policy x.pt --no-such-option\n"
+        "dockingrl train --help\n```\n"
+    )
+    assert fenced_commands(doc.read_text()) == [
+        "dockingrl train --recipe sac --scenario compound --seed 0",
+        "dockingrl train --seed zero",
+        "dockingrl eval --policy P --episodes 10",
+        "dockingrl train --init-from runs/<a sac run>",
+        "dockingrl stress --policy x.pt --no-such-option",
+        "dockingrl train --help",
+    ]
+    assert inline_commands(doc.read_text()) == [
+        "dockingrl train --no-such-option",
+        "dockingrl eval --policy",
+    ]
+    bad = broken_commands(doc)
+    assert len(bad) == 3
+    assert bad[0].startswith("dockingrl train --seed zero: argument --seed")
+    assert bad[1:] == [
+        "dockingrl stress --policy x.pt --no-such-option: unrecognized --no-such-option",
+        "dockingrl train --no-such-option: unrecognized --no-such-option",
     ]
 
 
