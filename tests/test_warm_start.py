@@ -125,7 +125,20 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
     )
     with pytest.raises(ArtifactError, match="holds no checkpoint"):
         trainer.warm_start()
-    wider = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), hidden=(48, 48))
+    hidden = json.loads((sac_run / "config.json").read_text())["hidden"]
+    for options, says in [
+        ({"hidden": (48, 48)}, rf"hidden: \[{hidden[0]}, {hidden[1]}\] there, \[48, 48\] here"),
+        ({"critic_layer_norm": True}, "critic_layer_norm: False there, True here"),
+    ]:
+        other = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), **options)
+        with pytest.raises(ValueError, match=f"its networks are not this run's \\({says}\\)"):
+            Trainer(other, tmp_path / "w", progress=False).warm_start()
+    # a checkpoint whose networks are not those its config.json says
+    mislabelled = tmp_path / "mislabelled"
+    shutil.copytree(sac_run, mislabelled)
+    config = json.loads((mislabelled / "config.json").read_text())
+    (mislabelled / "config.json").write_text(json.dumps({**config, "hidden": [48, 48]}))
+    wider = tiny_config("sac", "compound", tmp_path, init_from=str(mislabelled), hidden=(48, 48))
     with pytest.raises(ArtifactError, match="does not fit this run"):
         Trainer(wider, tmp_path / "w", progress=False).warm_start()
 

@@ -11,6 +11,31 @@ import torch
 from dockingrl.io import write_json
 from dockingrl.training.logger import drop_curves_after
 
+#: the config fields that shape an agent's networks: a warm start needs them equal
+NETWORK_FIELDS = (
+    "hidden",
+    "critic_layer_norm",
+    "activation",
+    "state_independent_scale",
+    "observe_current",
+    "observe_command",
+)
+
+
+def network_differences(source: dict, cfg) -> list[str]:
+    """The :data:`NETWORK_FIELDS` in which the config.json ``source`` and the config ``cfg``
+    differ, each as ``"name: <source's> there, <cfg's> here"``."""
+    differ = []
+    for name in NETWORK_FIELDS:
+        if name not in source or not hasattr(cfg, name):
+            continue
+        theirs, mine = source[name], getattr(cfg, name)
+        if isinstance(mine, tuple):
+            mine = list(mine)
+        if theirs != mine:
+            differ.append(f"{name}: {theirs} there, {mine} here")
+    return differ
+
 
 class Checkpoints:
     """The checkpoints of a :class:`~dockingrl.training.Trainer`: what it has trained
@@ -114,13 +139,20 @@ class Checkpoints:
         cfg = self.cfg
         source = Path(cfg.init_from)
         try:
-            algo = json.loads((source / "config.json").read_text())["algo"]
+            config = json.loads((source / "config.json").read_text())
+            algo = config["algo"]
         except (OSError, ValueError, KeyError, TypeError):
             raise ArtifactError(
                 f"init_from {source}: no run folder (no readable config.json)"
             ) from None
         if algo != cfg.algo:
             raise ValueError(f"init_from {source}: a {algo} run, not {cfg.algo}")
+        differ = network_differences(config, cfg)
+        if differ:
+            raise ValueError(
+                f"init_from {source}: its networks are not this run's ({'; '.join(differ)}); "
+                "give this run the same network options"
+            )
         if not (source / "summary.json").exists():
             raise ValueError(
                 f"init_from {source}: the run has not finished (no summary.json); finish it "
