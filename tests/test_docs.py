@@ -97,7 +97,7 @@ def broken_paths(doc: Path) -> list[str]:
 
 
 #: a word that stands for a value the reader fills in (``--seed S``, ``--policy P``, ``...``);
-#: ``<a run>`` stands for one too
+#: :func:`unparsable` also skips a command with a ``<a run>`` placeholder, which may span words
 PLACEHOLDER = re.compile(r"^(\.\.\.|[A-Z][A-Z_]*)$")
 
 
