@@ -67,6 +67,43 @@ def test_compare_curves_refuses_a_run_without_the_curve(tmp_path, capsys):
     assert not (tmp_path / "x.png").exists()
 
 
+def test_compare_curves_draws_again_from_its_table(tmp_path):
+    a = fake_run(tmp_path / "a", [0.0, 20.0, 45.0])
+    first = tmp_path / "first"
+    argv = [str(a), "--out", str(first), "--labels", "A", "--title", "t (x)", "--machine", "M"]
+    assert load_script("compare_curves.py").main(argv) == 0
+    table = json.loads(first.with_suffix(".json").read_text())
+    again = tmp_path / "again"
+    redraw = ["--from-table", str(first.with_suffix(".json")), "--out", str(again)]
+    assert load_script("compare_curves.py").main(redraw) == 0
+    assert again.with_suffix(".png").stat().st_size > 1000
+    second = json.loads(again.with_suffix(".json").read_text())
+    # the curves, title, machine and the command that read the runs are the first table's
+    for key in ("runs", "title", "machine", "key", "command"):
+        assert second[key] == table[key], key
+    # what drew it again: the command, the machine it ran on and its wall-clock
+    assert shlex.split(second["drawn"]["command"]) == [
+        "python",
+        "scripts/compare_curves.py",
+        *redraw,
+    ]
+    assert second["drawn"]["wall_clock_s"] > 0 and "cores" in second["drawn"]["machine"]
+
+
+def test_compare_curves_refuses_a_table_it_did_not_write_and_runs_with_a_table(tmp_path, capsys):
+    a = fake_run(tmp_path / "a", [1.0])
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"runs": {}}')
+    script = load_script("compare_curves.py")
+    with pytest.raises(SystemExit):
+        script.main(["--from-table", str(bad), "--out", str(tmp_path / "x")])
+    assert "not a table of compare_curves.py" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        script.main([str(a), "--from-table", str(bad), "--out", str(tmp_path / "x")])
+    assert "not both or neither" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
+
+
 def test_filter_nees_by_phase_reports_every_band(tmp_path):
     out, spec = tmp_path / "nees.json", "hand"
     argv = [spec, "--out", str(out), "--seed", "1000"]
