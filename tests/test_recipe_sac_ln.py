@@ -2,6 +2,9 @@
 extends, and that the second stage takes the first stage's run where ``sac-robust-ft`` refuses
 it."""
 
+import json
+from pathlib import Path
+
 import pytest
 from test_recipes import TINY, TINY_ALGO
 
@@ -34,3 +37,36 @@ def test_the_second_stage_fine_tunes_the_first_at_l5(tmp_path, short_episodes):
     argv = ["train", "--recipe", "sac-ln-robust-ft", "--init-from", nominal, "--run-name", "ft"]
     assert main([*argv, *tiny]) == 0
     assert (tmp_path / "ft" / "policy.pt").is_file()
+
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "stress" / "robust_ft_ln"
+#: where a run went and what it logged to, the recipe named on its command line and the run it
+#: started from: the runs were made with ``--recipe sac`` / ``sac-robust-ft`` and the options
+#: the ``sac-ln`` recipes now set
+RUN_FIELDS = {"out", "run_name", "logger", "recipe", "init_from"}
+#: the seeds whose two stages and ladders are in ``RESULTS``
+COMMITTED_SEEDS = [0]
+
+
+@pytest.mark.parametrize("seed", COMMITTED_SEEDS)
+@pytest.mark.parametrize(
+    ("stage", "recipe"), [("sac_ln", "sac-ln"), ("sac_ln_robust_ft", "sac-ln-robust-ft")]
+)
+def test_the_committed_runs_are_the_recipes(seed, stage, recipe):
+    folder = RESULTS / f"{stage}_s{seed}"
+    run = json.loads((folder / "config.json").read_text())
+    expected = load_recipe(recipe).make_config(scenario="filtered", seed=seed).to_dict()
+    expected = json.loads(json.dumps(expected))  # as config.json holds it (lists, not tuples)
+    differing = {k for k in expected.keys() | run.keys() if expected.get(k) != run.get(k)}
+    assert differing <= RUN_FIELDS, differing - RUN_FIELDS
+    if stage == "sac_ln_robust_ft":
+        # the fine-tune started from the committed first stage of the same seed
+        assert Path(run["init_from"]).name == f"sac_filtered_ln_s{seed}"
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["frames"] <= expected["total_steps"] + expected["frames_per_batch"]
+    assert summary["success_rate"] == json.loads((folder / "eval.json").read_text())["success_rate"]
+    ladder = json.loads((folder / "stress.json").read_text())
+    assert Path(ladder["policy"]).parent.name in {
+        f"sac_filtered_ln_s{seed}",
+        f"sac_robust_ft_ln_s{seed}",
+    }
