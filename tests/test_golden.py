@@ -18,12 +18,12 @@ import hashlib
 import json
 import math
 import os
-import platform as platform_module
 from pathlib import Path
 
 import pytest
 import torch
 
+from dockingrl.evaluation.machine import cpu_model
 from dockingrl.recipes import load_recipe
 from dockingrl.training import read_curves, train
 
@@ -55,14 +55,7 @@ TINY_ALGO = {
 
 def platform() -> str:
     """The CPU's model name and torch's version: what decides a run's bits besides the code."""
-    cpu = platform_module.processor() or platform_module.machine()
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        for line in cpuinfo.read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    return f"{cpu}, torch {torch.__version__}"
+    return f"{cpu_model()}, torch {torch.__version__}"
 
 
 def readable_numbers(fp: dict) -> dict[str, float]:
