@@ -208,3 +208,21 @@ def fake_run(
     (run / "curves.csv").write_text("\n".join(rows) + "\n")
     (run / "policy.pt").write_bytes(b"x")
     return run
+
+
+def recipe_changes(name: str, base: str) -> dict:
+    """The config fields (``recipe`` aside) in which recipe ``name`` differs from ``base``."""
+    from dockingrl.recipes import load_recipe
+
+    new, old = load_recipe(name).make_config().to_dict(), load_recipe(base).make_config().to_dict()
+    return {k: v for k, v in new.items() if old[k] != v and k != "recipe"}
+
+
+def differences_from_recipe(run_dir: Path, recipe: str, **fields) -> set[str]:
+    """The fields in which the ``config.json`` of ``run_dir`` differs from recipe's config with
+    ``fields`` set (compared as config.json holds them: lists, not tuples)."""
+    from dockingrl.recipes import load_recipe
+
+    run = json.loads((run_dir / "config.json").read_text())
+    expected = json.loads(json.dumps(load_recipe(recipe).make_config(**fields).to_dict()))
+    return {k for k in expected.keys() | run.keys() if expected.get(k) != run.get(k)}

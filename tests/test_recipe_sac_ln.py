@@ -6,22 +6,18 @@ import json
 from pathlib import Path
 
 import pytest
+from helpers import differences_from_recipe, recipe_changes
 from test_recipes import TINY, TINY_ALGO
 
 from dockingrl.cli import main
 from dockingrl.recipes import load_recipe
 
 
-def changed_fields(name: str, base: str) -> dict:
-    new, old = load_recipe(name).make_config().to_dict(), load_recipe(base).make_config().to_dict()
-    return {k: v for k, v in new.items() if old[k] != v and k != "recipe"}
-
-
 @pytest.mark.parametrize(
     ("name", "base"), [("sac-ln", "sac"), ("sac-ln-robust-ft", "sac-robust-ft")]
 )
 def test_each_is_its_base_with_layer_normed_critics_on_one_thread(name, base):
-    assert changed_fields(name, base) == {"critic_layer_norm": True, "threads": 1}
+    assert recipe_changes(name, base) == {"critic_layer_norm": True, "threads": 1}
     assert load_recipe(name).make_config().recipe == name
 
 
@@ -54,16 +50,15 @@ COMMITTED_SEEDS = [0, 2]
 )
 def test_the_committed_runs_are_the_recipes(seed, stage, recipe):
     folder = RESULTS / f"{stage}_s{seed}"
-    run = json.loads((folder / "config.json").read_text())
-    expected = load_recipe(recipe).make_config(scenario="filtered", seed=seed).to_dict()
-    expected = json.loads(json.dumps(expected))  # as config.json holds it (lists, not tuples)
-    differing = {k for k in expected.keys() | run.keys() if expected.get(k) != run.get(k)}
+    differing = differences_from_recipe(folder, recipe, scenario="filtered", seed=seed)
     assert differing <= RUN_FIELDS, differing - RUN_FIELDS
+    run = json.loads((folder / "config.json").read_text())
+    expected = load_recipe(recipe).make_config()
     if stage == "sac_ln_robust_ft":
         # the fine-tune started from the committed first stage of the same seed
         assert Path(run["init_from"]).name == f"sac_filtered_ln_s{seed}"
     summary = json.loads((folder / "summary.json").read_text())
-    assert summary["frames"] <= expected["total_steps"] + expected["frames_per_batch"]
+    assert summary["frames"] <= expected.total_steps + expected.frames_per_batch
     assert summary["success_rate"] == json.loads((folder / "eval.json").read_text())["success_rate"]
     ladder = json.loads((folder / "stress.json").read_text())
     assert Path(ladder["policy"]).parent.name in {

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+from helpers import differences_from_recipe, recipe_changes
 
 from dockingrl.recipes import load_recipe, recipe_names
 
@@ -18,10 +19,7 @@ RUN_FIELDS = {"out", "run_name", "logger", "recipe"}
 
 def test_td3_200k_is_td3_with_one_update_per_env_step_and_layer_normed_critics():
     assert "td3-200k" in recipe_names()
-    fast, base = load_recipe("td3-200k").make_config(), load_recipe("td3").make_config()
-    base = base.to_dict()
-    changed = {k: v for k, v in fast.to_dict().items() if base[k] != v and k != "recipe"}
-    assert changed == {
+    assert recipe_changes("td3-200k", "td3") == {
         "total_steps": 200_000,
         "updates_per_step": 1.0,
         "critic_layer_norm": True,
@@ -29,18 +27,18 @@ def test_td3_200k_is_td3_with_one_update_per_env_step_and_layer_normed_critics()
         "eval_every": 10_000,
         "threads": 1,
     }
+    fast = load_recipe("td3-200k").make_config()
     assert (fast.algo, fast.recipe) == ("td3", "td3-200k")
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_committed_runs_are_the_recipe(seed):
-    run = json.loads((RUNS / f"seed{seed}" / "config.json").read_text())
-    recipe = load_recipe("td3-200k").make_config(scenario="compound", seed=seed).to_dict()
-    recipe = json.loads(json.dumps(recipe))  # as config.json holds it (lists, not tuples)
-    differing = {k for k in recipe.keys() | run.keys() if recipe.get(k) != run.get(k)}
+    differing = differences_from_recipe(
+        RUNS / f"seed{seed}", "td3-200k", scenario="compound", seed=seed
+    )
     assert differing <= RUN_FIELDS, differing - RUN_FIELDS
     summary = json.loads((RUNS / f"seed{seed}" / "summary.json").read_text())
-    assert summary["frames"] <= 200_000 + recipe["frames_per_batch"]
+    assert summary["frames"] <= 200_000 + load_recipe("td3-200k").make_config().frames_per_batch
     assert (
         summary["success_rate"]
         == json.loads((RUNS / f"seed{seed}" / "eval.json").read_text())["success_rate"]
