@@ -143,8 +143,9 @@ def test_every_recipe_trains_on_cuda(name, tmp_path, short_episodes):
         return [*argv, "--run-name", run_name, *TINY, *TINY_ALGO[algo], "--device", "cuda"]
 
     argv = train_args(name, "r")
-    if load_recipe(name).config.get("init_replay"):  # a fine-tune: first the run it starts from
-        assert cli_main([*train_args(algo, "base"), "--checkpoint-every", "800"]) == 0
+    first_stage = load_recipe(name).first_stage
+    if first_stage:  # a fine-tune: first the run it starts from
+        assert cli_main([*train_args(first_stage, "base"), "--checkpoint-every", "800"]) == 0
         argv += ["--init-from", str(tmp_path / "base")]
     assert cli_main(argv) == 0
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())

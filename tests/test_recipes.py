@@ -115,6 +115,8 @@ def test_a_recipe_file_and_overrides(tmp_path):
         ("base: sac\nalgo: ppo\n", "differs from its base's"),
         ("base: no-such-recipe\n", "unknown recipe 'no-such-recipe'"),
         ("algo: sac\nconfig: [\n", "not valid YAML"),
+        ("algo: sac\nfirst_stage: no-such-recipe\n", "unknown recipe 'no-such-recipe'"),
+        ("algo: sac\nfirst_stage: ppo\n", "first_stage 'ppo' is a ppo recipe, not sac"),
     ],
 )
 def test_bad_recipe_files_are_one_line_errors(tmp_path, text, message):
@@ -205,3 +207,29 @@ def test_recipes_command_lists_and_shows(capsys):
     assert main(["recipes", "td3"]) == 0
     shown = capsys.readouterr().out
     assert "* updates_per_step = 0.1" in shown and "  policy_delay = 2" in shown
+
+
+def test_a_fine_tune_names_its_first_stage_and_inherits_it(tmp_path):
+    assert load_recipe("sac").first_stage == ""
+    assert load_recipe("sac-robust-ft").first_stage == "sac"
+    assert load_recipe("sac-ln-robust-ft").first_stage == "sac-ln"  # its own, not its base's
+    (tmp_path / "stage.yaml").write_text("base: sac\nconfig:\n  lr: 0.001\n")
+    (tmp_path / "ft.yaml").write_text("base: sac-robust-ft\nfirst_stage: stage.yaml\n")
+    (tmp_path / "ft2.yaml").write_text("base: ft.yaml\nconfig:\n  total_steps: 1000\n")
+    assert load_recipe(tmp_path / "ft2.yaml").first_stage == str(tmp_path / "stage.yaml")
+
+
+@pytest.mark.parametrize("name", recipe_names())
+def test_a_shipped_fine_tune_takes_the_runs_of_its_first_stage(name):
+    """A recipe that loads a replay buffer names the recipe it starts from, and that recipe's
+    networks are its own (else ``--init-from`` would refuse every run of it)."""
+    from dockingrl.training.checkpointing import network_differences
+
+    recipe = load_recipe(name)
+    if not recipe.config.get("init_replay"):
+        assert recipe.first_stage == ""
+        return
+    assert recipe.first_stage in recipe_names()
+    # the first stage's config.json, as a run of it writes it
+    stage = json.loads(json.dumps(load_recipe(recipe.first_stage).make_config().to_dict()))
+    assert network_differences(stage, recipe.make_config()) == []

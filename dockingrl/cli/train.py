@@ -125,6 +125,8 @@ def cmd_recipes(args: argparse.Namespace) -> int:
     if args.name:
         recipe = load_recipe(args.name)
         print(f"{recipe.name} ({recipe.algo}): {recipe.description}")
+        if recipe.first_stage:
+            print(f"first stage: a run of recipe {recipe.first_stage} (--init-from RUN_DIR)")
         for key, value in recipe.make_config().to_dict().items():
             mark = "*" if key in recipe.config else " "
             print(f" {mark} {key} = {value}")

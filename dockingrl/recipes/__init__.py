@@ -10,6 +10,8 @@ listed by :func:`recipe_names` or the path of a YAML file of the same form::
     description: one line     # optional
     base: sac                 # optional: a recipe whose fields this one starts from (a
                               # name, or a file: beside this one, else from the working folder)
+    first_stage: sac          # optional, for a fine-tune: the recipe of the run that
+                              # ``--init-from RUN_DIR`` takes (inherited from ``base``)
     config:                   # fields of the algorithm's config
       num_envs: 16
       hidden: [256, 256]
@@ -26,7 +28,7 @@ from typing import Any
 
 from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
 
-_KEYS = ("algo", "description", "base", "config")
+_KEYS = ("algo", "description", "base", "first_stage", "config")
 #: how deep ``base`` recipes may nest (a deeper chain is taken for a cycle)
 _MAX_BASES = 8
 
@@ -39,6 +41,9 @@ class Recipe:
     algo: str
     description: str = ""
     config: dict[str, Any] = field(default_factory=dict)
+    #: for a fine-tune, the recipe whose run ``--init-from`` takes ("" for a recipe that
+    #: trains from scratch)
+    first_stage: str = ""
 
     def make_config(self, **overrides) -> TrainConfig:
         """The recipe's config with ``overrides`` on top, validated; its ``recipe`` field
@@ -62,12 +67,21 @@ def recipe_names() -> list[str]:
     return sorted(p.name[: -len(".yaml")] for p in root.iterdir() if p.name.endswith(".yaml"))
 
 
+def _beside(spec: str, other: str) -> str:
+    """The recipe ``other`` that the recipe ``spec`` names: a file beside a recipe file is
+    found first, then a shipped name, then a path from the working folder."""
+    beside = Path(spec).parent / other
+    if spec not in recipe_names() and other not in recipe_names() and beside.is_file():
+        return str(beside)
+    return other
+
+
 def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
     """The shipped recipe named ``spec``, or the recipe in the YAML file at path ``spec``.
 
     Raises ``ValueError`` (one line) for an unknown name, an unreadable or malformed file, an
-    unknown algorithm or config field, a value of the wrong type, or a ``base`` of another
-    algorithm or in a cycle."""
+    unknown algorithm or config field, a value of the wrong type, a ``base`` of another
+    algorithm or in a cycle, or a ``first_stage`` that is unknown or of another algorithm."""
     import yaml
 
     if _depth > _MAX_BASES:
@@ -98,11 +112,7 @@ def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
         raise ValueError(f"recipe {spec}: unknown key(s) {', '.join(map(str, extra))}")
     base = None
     if data.get("base") is not None:
-        base_spec = str(data["base"])
-        beside = Path(spec).parent / base_spec
-        if spec not in recipe_names() and base_spec not in recipe_names() and beside.is_file():
-            base_spec = str(beside)  # a base file is found beside the recipe first
-        base = load_recipe(base_spec, _depth + 1)
+        base = load_recipe(_beside(spec, str(data["base"])), _depth + 1)
         if data.get("algo", base.algo) != base.algo:
             raise ValueError(
                 f"recipe {spec}: algo {data['algo']!r} differs from its base's ({base.algo!r})"
@@ -115,7 +125,16 @@ def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
     if not isinstance(config, dict):
         raise ValueError(f"recipe {spec}: config must be a mapping of fields")
     config = {**(base.config if base else {}), **config}
-    recipe = Recipe(name, algo, str(data.get("description") or ""), config)
+    first_stage = base.first_stage if base else ""
+    if data.get("first_stage") is not None:
+        first_stage = _beside(spec, str(data["first_stage"]))
+    if first_stage:
+        stage = load_recipe(first_stage, _depth + 1)
+        if stage.algo != algo:
+            raise ValueError(
+                f"recipe {spec}: first_stage {first_stage!r} is a {stage.algo} recipe, not {algo}"
+            )
+    recipe = Recipe(name, algo, str(data.get("description") or ""), config, first_stage)
     try:
         check_types(algo, config)
         recipe.make_config()

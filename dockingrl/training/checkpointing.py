@@ -37,6 +37,20 @@ def network_differences(source: dict, cfg) -> list[str]:
     return differ
 
 
+def first_stage_hint(recipe: str | None) -> str:
+    """``", or a run of recipe R"`` where the recipe ``recipe`` fine-tunes runs of recipe R
+    (its ``first_stage``), else ``""``."""
+    from dockingrl.recipes import load_recipe
+
+    if not recipe:
+        return ""
+    try:
+        first_stage = load_recipe(recipe).first_stage
+    except ValueError:  # a recipe file moved or changed since: no hint
+        return ""
+    return f", or a run of recipe {first_stage}" if first_stage else ""
+
+
 class Checkpoints:
     """The checkpoints of a :class:`~dockingrl.training.Trainer`: what it has trained
     (``agent``, its replay buffer, the counters, the RNG and the kept candidates), written
@@ -151,7 +165,7 @@ class Checkpoints:
         if differ:
             raise ValueError(
                 f"init_from {source}: its networks are not this run's ({'; '.join(differ)}); "
-                "give this run the same network options"
+                f"give this run the same network options{first_stage_hint(cfg.recipe)}"
             )
         if not (source / "summary.json").exists():
             raise ValueError(
