@@ -332,3 +332,20 @@ def test_upgrade_names_a_damaged_old_file_and_goes_on_to_the_next(tmp_path, caps
     lines = capsys.readouterr().err.splitlines()
     assert [line.split(": ")[2] for line in lines] == [str(damaged), str(also)]
     assert all("a damaged dockingrl.filter_params file, not converted" in x for x in lines)
+
+
+def test_a_reader_that_stops_early_gets_no_error():
+    """`dockingrl recipes sac | head -1`: the pipe's reader exits before the listing is
+    written; the command stops quietly with SIGPIPE's status."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dockingrl", "recipes", "sac"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # before the interpreter has started: every write meets a closed pipe
+    stderr = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141, stderr
+    assert "rror" not in stderr, stderr

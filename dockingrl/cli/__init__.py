@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -96,6 +97,14 @@ def main(argv: list[str] | None = None) -> int:
         if extra:
             raise UsageError(f"unrecognized arguments: {' '.join(extra)}")
         return args.func(args)
+    except BrokenPipeError:
+        # the reader of stdout went away (`dockingrl recipes | head -1`): stop quietly, as a
+        # pipe's writer does, and keep the interpreter's last flush from failing again
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):  # a stdout without a file descriptor
+            pass
+        return 128 + 13  # killed by SIGPIPE, as the shell reports it
     except BaseException as exc:
         if isinstance(exc, SystemExit) and not isinstance(exc.code, str):
             raise
