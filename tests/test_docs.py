@@ -1,5 +1,6 @@
-"""The README and docs/: every relative link and every repository path they name exists, every
-``dockingrl`` command they quote (and those of results/) parses, and the README stays short."""
+"""The README, docs/ and the READMEs of results/: every relative link and every repository path
+they name exists, every ``dockingrl`` command they quote parses, every result folder says what
+made it, and the README stays short."""
 
 import functools
 import glob
@@ -196,14 +197,31 @@ def test_the_command_check_finds_an_unknown_option_and_a_bad_value(tmp_path):
     ]
 
 
-@pytest.mark.parametrize("doc", documents(), ids=lambda p: p.name)
+@pytest.mark.parametrize("doc", documents_with_commands(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_relative_link_resolves(doc):
     assert broken_links(doc) == []
 
 
-@pytest.mark.parametrize("doc", documents(), ids=lambda p: p.name)
+@pytest.mark.parametrize("doc", documents_with_commands(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_quoted_repository_path_exists(doc):
     assert broken_paths(doc) == []
+
+
+#: a backticked command that made a result, and a wall-clock (``969 s``, ``4 min``, ``67.3 h``)
+RESULT_COMMAND = re.compile(r"`(?:dockingrl|python|bash) ")
+WALL_CLOCK = re.compile(r"\b\d[\d,.]*(?: s| min| h)\b")
+
+
+def test_every_result_folder_has_a_readme_naming_its_command():
+    folders = sorted(p for p in (ROOT / "results").iterdir() if p.is_dir())
+    assert folders
+    for folder in folders:
+        readme = folder / "README.md"
+        name = folder.relative_to(ROOT)
+        assert readme.is_file(), f"{name} has no README.md"
+        text = readme.read_text()
+        assert RESULT_COMMAND.search(text), f"{name}/README.md quotes no command"
+        assert WALL_CLOCK.search(text), f"{name}/README.md gives no wall-clock"
 
 
 def test_readme_is_short_and_starts_with_the_set_up_commands():
