@@ -1,10 +1,11 @@
-"""The ``ppo-fast`` recipe of the main job: what it sets, that ``main.sh`` trains it with no
-other config option, and a smoke run of ``dockingrl train --recipe ppo-fast``."""
+"""The ``ppo-fast`` recipe and the main job's ``ppo-fast-follow`` on it: what each sets, that
+``main.sh`` trains the second with no other config option, and a smoke run of each."""
 
 import json
 import re
 from pathlib import Path
 
+from helpers import recipe_changes
 from test_recipes import TINY, TINY_ALGO
 
 from dockingrl.cli import main
@@ -25,12 +26,16 @@ def test_ppo_fast_is_shipped_and_sized_for_the_main_job():
     assert cfg.final_eval_episodes == 2000 and cfg.threads == 1
 
 
-def test_main_sh_trains_the_ppo_fast_recipe_alone():
+def test_ppo_fast_follow_is_ppo_fast_with_following_currents_in_training():
+    assert recipe_changes("ppo-fast-follow", "ppo-fast") == {"following_current_fraction": 0.9}
+
+
+def test_main_sh_trains_the_ppo_fast_follow_recipe_alone():
     script = (ROOT / "main.sh").read_text()
     calls = re.findall(r"-m dockingrl train ([^\n]*)", script)
     assert len(calls) == 1
     options = calls[0].split()
-    assert options[:2] == ["--recipe", "ppo-fast"]
+    assert options[:2] == ["--recipe", "ppo-fast-follow"]
     # no config field beyond the recipe's, except where the run folder goes
     assert [o for o in options if o.startswith("--")] == ["--recipe", "--out"]
 
