@@ -5,13 +5,14 @@ import json
 import re
 from pathlib import Path
 
-from helpers import recipe_changes
+from helpers import differences_from_recipe, recipe_changes
 from test_recipes import TINY, TINY_ALGO
 
 from dockingrl.cli import main
 from dockingrl.recipes import load_recipe, recipe_names
 
 ROOT = Path(__file__).resolve().parents[1]
+MAIN_JOB = ROOT / "results" / "agents" / "main_job"
 
 
 def test_ppo_fast_is_shipped_and_sized_for_the_main_job():
@@ -53,3 +54,15 @@ def test_train_with_the_ppo_fast_recipe(tmp_path, short_episodes):
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert summary["frames"] >= 1600
     assert json.loads((tmp_path / "r" / "eval.json").read_text())["episodes"] == 4
+
+
+def test_the_committed_main_job_runs_are_the_recipe():
+    """``results/agents/main_job/`` (seed 0) and its ``seed1/`` are ``bash main.sh`` runs of
+    ``ppo-fast-follow``: their configs are the recipe's at their seeds, and their summaries
+    name the command."""
+    for folder, seed in [(MAIN_JOB, 0), (MAIN_JOB / "seed1", 1)]:
+        assert differences_from_recipe(folder, "ppo-fast-follow", seed=seed) == set()
+        summary = json.loads((folder / "summary.json").read_text())
+        assert summary["command"].startswith("dockingrl train --recipe ppo-fast-follow --out runs")
+        assert summary["frames"] >= 3_000_000
+        assert json.loads((folder / "eval.json").read_text())["episodes"] == 2000
