@@ -218,11 +218,17 @@ def recipe_changes(name: str, base: str) -> dict:
     return {k: v for k, v in new.items() if old[k] != v and k != "recipe"}
 
 
-def differences_from_recipe(run_dir: Path, recipe: str, **fields) -> set[str]:
-    """The fields in which the ``config.json`` of ``run_dir`` differs from recipe's config with
-    ``fields`` set (compared as config.json holds them: lists, not tuples)."""
+def recipe_config_json(recipe: str, **fields) -> dict:
+    """Recipe ``recipe``'s config with ``fields`` set, as a run's ``config.json`` holds it
+    (lists, not tuples)."""
     from dockingrl.recipes import load_recipe
 
+    return json.loads(json.dumps(load_recipe(recipe).make_config(**fields).to_dict()))
+
+
+def differences_from_recipe(run_dir: Path, recipe: str, **fields) -> set[str]:
+    """The fields in which the ``config.json`` of ``run_dir`` differs from recipe's config with
+    ``fields`` set (compared as config.json holds them)."""
     run = json.loads((run_dir / "config.json").read_text())
-    expected = json.loads(json.dumps(load_recipe(recipe).make_config(**fields).to_dict()))
+    expected = recipe_config_json(recipe, **fields)
     return {k for k in expected.keys() | run.keys() if expected.get(k) != run.get(k)}

@@ -1,5 +1,6 @@
 """The ``ppo-fast`` recipe and the main job's ``ppo-fast-follow`` on it: what each sets, that
-``main.sh`` trains the second with no other config option, and a smoke run of each."""
+``main.sh`` trains the second with no other config option, a smoke run of ``ppo-fast``, and
+that the committed main-job runs are ``ppo-fast-follow``'s."""
 
 import json
 import re

@@ -4,6 +4,7 @@
 import json
 
 import pytest
+from helpers import recipe_config_json
 
 from dockingrl.agents.config import make_config
 from dockingrl.cli import main
@@ -230,6 +231,5 @@ def test_a_shipped_fine_tune_takes_the_runs_of_its_first_stage(name):
         assert recipe.first_stage == ""
         return
     assert recipe.first_stage in recipe_names()
-    # the first stage's config.json, as a run of it writes it
-    stage = json.loads(json.dumps(load_recipe(recipe.first_stage).make_config().to_dict()))
+    stage = recipe_config_json(recipe.first_stage)  # as a run of it writes its config.json
     assert network_differences(stage, recipe.make_config()) == []
