@@ -2,14 +2,17 @@
 ``SoftUpdate`` numbers exactly; ``fast_update`` (fused Adam, the twin critics as plain matrix
 products on a CPU) computes the default update up to rounding."""
 
+from contextlib import nullcontext
+
 import pytest
 import torch
 from tensordict import TensorDict
+from tensordict.nn import TensorDictParams
 from torchrl.objectives import SoftUpdate, TD3Loss
 
 from dockingrl.agents import make_agent
 from dockingrl.agents.config import make_config
-from dockingrl.agents.off_policy import CriticsInTurn
+from dockingrl.agents.off_policy import CriticsInTurn, ModuleOwnParams
 from dockingrl.scenarios import make_env
 
 OBS = 12
@@ -57,6 +60,11 @@ def stock_soft_update(agent):
 def stock_critic_loop(agent):
     """TorchRL's own loop over the critics."""
     type(agent.loss).__mro__[1]._make_vmap(agent.loss)
+
+
+def stock_actor_swaps(agent):
+    """TorchRL's ``TensorDictParams`` for the actor: a swap into the actor at each call."""
+    agent.loss.actor_network_params = TensorDictParams(agent.loss.actor_network_params)
 
 
 def stock_td3_actor_loss(agent):
@@ -172,3 +180,37 @@ def test_td3_actor_loss_reads_the_first_critic_alone_to_torchrls_numbers():
     assert calls == [torch.Size([1])] and meta["state_action_value_actor"].shape == (1, 64)
     _, start = trained("td3", 0, fast_update=True)
     assert any(not torch.equal(ours_state[k], start[k]) for k in ours_state if "actor" in k)
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_the_actors_own_parameters_are_not_swapped_and_give_torchrls_numbers(algo):
+    ours, ours_state = trained(algo, 4, fast_update=True)
+    params, actor = ours.loss.actor_network_params, ours.loss.actor_network
+    assert isinstance(params, ModuleOwnParams)
+    assert isinstance(params.to_module(actor, preserve_module_state=False), nullcontext)
+    agent, stock = trained(algo, 4, stock=stock_actor_swaps, fast_update=True)
+    assert type(agent.loss.actor_network_params) is TensorDictParams
+    assert ours_state.keys() == stock.keys()
+    for key in ours_state:
+        assert torch.equal(ours_state[key], stock[key]), key
+    _, start = trained(algo, 0, fast_update=True)
+    assert any(not torch.equal(ours_state[k], start[k]) for k in ours_state if "actor" in k)
+    # the default update keeps TorchRL's
+    default, _ = trained(algo, 0)
+    assert type(default.loss.actor_network_params) is TensorDictParams
+
+
+def test_a_replaced_actor_parameter_is_swapped_in():
+    ours, _ = trained("sac", 0, fast_update=True)
+    params, actor = ours.loss.actor_network_params, ours.loss.actor_network
+    key, weight = next((k, v) for k, v in params.items(True, True) if k[-1] == "weight")
+    layer = actor
+    for part in key[:-1]:
+        layer = getattr(layer, part)
+    assert layer.weight is weight
+    zeros = torch.nn.Parameter(torch.zeros_like(weight))
+    params.set(key, zeros)
+    with params.to_module(actor, preserve_module_state=False):
+        assert layer.weight is zeros
+    # out of the swap, the actor holds its own again
+    assert layer.weight is weight
