@@ -2,6 +2,7 @@
 ``SoftUpdate`` numbers exactly; ``fast_update`` (fused Adam, the twin critics as plain matrix
 products on a CPU) computes the default update up to rounding."""
 
+import copy
 from contextlib import nullcontext
 
 import pytest
@@ -200,13 +201,19 @@ def test_the_actors_own_parameters_are_not_swapped_and_give_torchrls_numbers(alg
     assert type(default.loss.actor_network_params) is TensorDictParams
 
 
+def actor_layer(loss, key):
+    """The actor's module that holds the tensor at ``key`` of the loss's actor parameters."""
+    layer = loss.actor_network
+    for part in key[:-1]:
+        layer = getattr(layer, part)
+    return layer
+
+
 def test_a_replaced_actor_parameter_is_swapped_in():
     ours, _ = trained("sac", 0, fast_update=True)
     params, actor = ours.loss.actor_network_params, ours.loss.actor_network
     key, weight = next((k, v) for k, v in params.items(True, True) if k[-1] == "weight")
-    layer = actor
-    for part in key[:-1]:
-        layer = getattr(layer, part)
+    layer = actor_layer(ours.loss, key)
     assert layer.weight is weight
     zeros = torch.nn.Parameter(torch.zeros_like(weight))
     params.set(key, zeros)
@@ -214,3 +221,25 @@ def test_a_replaced_actor_parameter_is_swapped_in():
         assert layer.weight is zeros
     # out of the swap, the actor holds its own again
     assert layer.weight is weight
+
+
+def test_a_parameter_replaced_in_the_actor_is_swapped_out():
+    ours, _ = trained("sac", 0, fast_update=True)
+    params, actor = ours.loss.actor_network_params, ours.loss.actor_network
+    key, weight = next((k, v) for k, v in params.items(True, True) if k[-1] == "weight")
+    layer = actor_layer(ours.loss, key)
+    layer.weight = torch.nn.Parameter(torch.zeros_like(weight))
+    with params.to_module(actor, preserve_module_state=False):
+        assert layer.weight is weight
+
+
+def test_another_module_and_a_moved_buffer_are_swapped():
+    ours, _ = trained("td3", 0, fast_update=True)
+    params, actor = ours.loss.actor_network_params, ours.loss.actor_network
+    other = copy.deepcopy(actor)
+    assert not isinstance(params.to_module(other, preserve_module_state=False), nullcontext)
+    ours.loss.double()  # the loss's buffers move to new memory, the actor's stay
+    key, buffer = next((k, v) for k, v in params.items(True, True) if k[-1] == "scale")
+    assert actor_layer(ours.loss, key).scale.dtype == torch.float32
+    with params.to_module(actor, preserve_module_state=False):
+        assert actor_layer(ours.loss, key).scale.dtype == torch.float64

@@ -131,20 +131,23 @@ class CriticsInTurn:
 
 
 class ModuleOwnParams(TensorDictParams):
-    """A loss's ``TensorDictParams`` of a network whose module holds the same tensors (TorchRL
-    takes the actor's parameters from the actor itself; a buffer may be another view of the
-    same memory): ``to_module`` onto that module is no swap while the module and these
-    parameters (their ``nn.Module`` tables, which ``TensorDictParams`` keeps in step with its
-    tensordict) still hold the tensors they held when made, and a real one otherwise (a tensor
-    replaced in either). TorchRL's SAC and TD3 losses swap the actor's parameters in and out
-    of the actor at each of its evaluations; skipping that is the same arithmetic, about 4 %
-    of an eager SAC update at the paper's sizes on a 2-core CPU
-    (``results/bench/update_speed.md``)."""
+    """A loss's ``TensorDictParams`` of a network whose module holds the same tensors: TorchRL
+    takes the actor's parameters from the actor itself (the same ``Parameter`` objects; each
+    buffer another tensor over the same memory). ``to_module`` onto that module is no swap
+    while both sides hold what they held when these were made (this object's ``nn.Module``
+    tables, which ``TensorDictParams`` keeps in step with its tensordict, and the module's),
+    each buffer pair still over one memory, and TorchRL's swap otherwise: a tensor replaced in
+    either, a buffer moved on one side (``loss.to(...)``, ``loss.double()``), another module.
+    TorchRL's SAC and TD3 losses swap the actor's parameters in and out of the actor at each of
+    its evaluations; skipping that is the same arithmetic, about 4 % of an eager SAC update at
+    the paper's sizes on a 2-core CPU (``results/bench/update_speed.md``). A deep copy is a
+    plain ``TensorDictParams`` of copied tensors, which swaps."""
 
     def __init__(self, params: TensorDictParams, module: nn.Module) -> None:
         super().__init__(params)
         held = []
         for key, tensor in self.items(True, True):
+            key = _key(key)
             owner = module
             for part in key[:-1]:
                 owner = getattr(owner, part, None)
@@ -165,7 +168,7 @@ class ModuleOwnParams(TensorDictParams):
             module is owner
             and held is not None
             and all(
-                ours.get(flat) is tensor and table.get(name) is mine
+                ours.get(flat) is tensor and table.get(name) is mine and _same_memory(mine, tensor)
                 for ours, flat, tensor, table, name, mine in held
             )
         ):
