@@ -1,7 +1,9 @@
-"""The machine an evaluation or a training ran on, in one line."""
+"""The machine an evaluation or a training ran on, in one line, and whether the threads asked
+for share their cores with other work."""
 
 from __future__ import annotations
 
+import os
 import platform
 from pathlib import Path
 
@@ -28,3 +30,28 @@ def describe_machine(device: torch.device | str | None = None) -> str:
     if device is not None and torch.device(device).type == "cuda":
         text += f", GPU {torch.cuda.get_device_name(device)}"
     return text
+
+
+def shared_cores_warning(threads: int, load: float | None = None, cores: int | None = None):
+    """One line to print when ``threads`` torch threads (more than one) would share their
+    cores with other running work: the load average over the last minute (``load``, else
+    ``os.getloadavg``) plus ``threads`` exceeds the ``cores`` (else ``os.cpu_count``) by half a
+    core or more; else None. Torch's threads wait for each other at every operation, so one
+    thread that shares a core holds all back: a ``ppo-fast`` run took 95 s at 2 threads beside
+    one single-thread job on 2 cores against 11 s at 1 thread (7 s at 2 threads on the idle
+    machine; docs/performance.md)."""
+    if threads <= 1:
+        return None
+    if load is None:
+        try:
+            load = os.getloadavg()[0]
+        except (AttributeError, OSError):  # no load average on this system
+            return None
+    cores = cores or os.cpu_count() or 1
+    if load + threads < cores + 0.5:
+        return None
+    return (
+        f"note: {threads} torch threads on {cores} cores with a load of {load:.1f}: threads "
+        "that share a core with other work wait for each other at every operation (up to 9x "
+        "slower); --threads 1 runs at full speed beside one other job"
+    )

@@ -1,0 +1,54 @@
+"""The note printed when the torch threads asked for would share their cores with other work
+(torch's threads wait for each other at every operation: a 2-thread run beside one busy job on
+2 cores was 9x slower than 1 thread, docs/performance.md)."""
+
+import pytest
+import torch
+from helpers import smoke_config
+
+from dockingrl.evaluation import machine
+from dockingrl.evaluation.machine import shared_cores_warning
+from dockingrl.training.trainer import Trainer
+
+
+@pytest.mark.parametrize(
+    ("threads", "load", "cores", "noted"),
+    [
+        (1, 5.0, 2, False),  # one thread never waits for another
+        (2, 0.1, 2, False),  # an idle machine
+        (2, 0.6, 2, True),  # one other job on two cores
+        (2, 1.0, 4, False),  # room beside it
+        (4, 1.0, 4, True),
+        (2, 2.0, 16, False),
+    ],
+)
+def test_the_note_reads_the_load_the_threads_and_the_cores(threads, load, cores, noted):
+    note = shared_cores_warning(threads, load=load, cores=cores)
+    assert (note is not None) is noted
+    if noted:
+        assert note.startswith(f"note: {threads} torch threads on {cores} cores")
+        assert "--threads 1" in note and "\n" not in note
+
+
+def test_no_load_average_means_no_note(monkeypatch):
+    def missing():
+        raise OSError("no load average")
+
+    monkeypatch.setattr(machine.os, "getloadavg", missing)
+    assert shared_cores_warning(2) is None
+
+
+@pytest.mark.parametrize(("load", "noted"), [(1.5, True), (0.0, False)])
+def test_a_training_prints_the_note_when_its_threads_share_cores(
+    tmp_path, monkeypatch, capsys, load, noted
+):
+    monkeypatch.setattr(machine.os, "getloadavg", lambda: (load, load, load))
+    monkeypatch.setattr(machine.os, "cpu_count", lambda: 2)
+    cfg = smoke_config("sac", "noise", tmp_path, "run", threads=2)
+    threads = torch.get_num_threads()
+    try:
+        Trainer(cfg, tmp_path / "run", progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    err = capsys.readouterr().err
+    assert ("note: 2 torch threads on 2 cores" in err) is noted
