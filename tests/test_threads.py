@@ -1,6 +1,8 @@
-"""The note printed when the torch threads asked for would share their cores with other work
-(torch's threads wait for each other at every operation: a 2-thread run beside one busy job on
-2 cores was 9x slower than 1 thread, docs/performance.md)."""
+"""The note printed on a terminal when the torch threads asked for would share their cores
+with other work (torch's threads wait for each other at every operation: a 2-thread run beside
+one busy job on 2 cores was 9x slower than 1 thread, docs/performance.md)."""
+
+import io
 
 import pytest
 import torch
@@ -38,17 +40,28 @@ def test_no_load_average_means_no_note(monkeypatch):
     assert shared_cores_warning(2) is None
 
 
-@pytest.mark.parametrize(("load", "noted"), [(1.5, True), (0.0, False)])
-def test_a_training_prints_the_note_when_its_threads_share_cores(
-    tmp_path, monkeypatch, capsys, load, noted
+class Terminal(io.StringIO):
+    """Standard error as a terminal."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize(
+    ("load", "stream", "noted"),
+    [(1.5, Terminal, True), (0.0, Terminal, False), (1.5, io.StringIO, False)],
+)
+def test_a_training_prints_the_note_on_a_terminal_when_its_threads_share_cores(
+    tmp_path, monkeypatch, load, stream, noted
 ):
     monkeypatch.setattr(machine.os, "getloadavg", lambda: (load, load, load))
     monkeypatch.setattr(machine.os, "cpu_count", lambda: 2)
+    err = stream()
+    monkeypatch.setattr(machine.sys, "stderr", err)
     cfg = smoke_config("sac", "noise", tmp_path, "run", threads=2)
     threads = torch.get_num_threads()
     try:
         Trainer(cfg, tmp_path / "run", progress=False)
     finally:
         torch.set_num_threads(threads)
-    err = capsys.readouterr().err
-    assert ("note: 2 torch threads on 2 cores" in err) is noted
+    assert ("note: 2 torch threads on 2 cores" in err.getvalue()) is noted

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from collections.abc import Callable
 
 
@@ -119,12 +118,11 @@ def policy_from_args(args: argparse.Namespace) -> tuple:
     name, scenario, options, trained)`` with that scenario."""
     import torch
 
-    from dockingrl.evaluation.machine import shared_cores_warning
+    from dockingrl.evaluation.machine import note_shared_cores
     from dockingrl.policies import load_policy
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
-    if (note := shared_cores_warning(args.threads)) is not None:
-        print(note, file=sys.stderr, flush=True)
+    note_shared_cores(args.threads)
     torch.set_num_threads(args.threads)
     policy, name, trained_scenario, options, trained = load_policy(
         args.policy, use_filter=args.use_filter, device=args.device

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 from pathlib import Path
 
 import torch
@@ -55,3 +56,12 @@ def shared_cores_warning(threads: int, load: float | None = None, cores: int | N
         "that share a core with other work wait for each other at every operation (up to 9x "
         "slower); --threads 1 runs at full speed beside one other job"
     )
+
+
+def note_shared_cores(threads: int, stream=None) -> None:
+    """Prints :func:`shared_cores_warning`'s line for ``threads`` to ``stream`` (standard
+    error) when there is one and the stream is a terminal: a person at it can act on it; logs,
+    pipes and tests keep their output as it was."""
+    stream = stream or sys.stderr
+    if stream.isatty() and (note := shared_cores_warning(threads)) is not None:
+        print(note, file=stream, flush=True)

@@ -3,7 +3,6 @@ log and checkpoint, until the run's ``total_steps`` or time budget."""
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import torch
 from dockingrl.agents import Agent, make_agent
 from dockingrl.agents.config import TrainConfig
 from dockingrl.agents.saving import save_policy
-from dockingrl.evaluation.machine import describe_machine, shared_cores_warning
+from dockingrl.evaluation.machine import describe_machine, note_shared_cores
 from dockingrl.io import write_json
 from dockingrl.training.checkpointing import Checkpoints
 from dockingrl.training.collection import (
@@ -37,8 +36,7 @@ class Trainer(Checkpoints, Selection):
         self, cfg: TrainConfig, run_dir: Path, *, progress: bool = True, command: str = ""
     ) -> None:
         self.cfg, self.run_dir, self.progress, self.command = cfg, run_dir, progress, command
-        if (note := shared_cores_warning(cfg.threads)) is not None:
-            print(note, file=sys.stderr, flush=True)
+        note_shared_cores(cfg.threads)
         torch.set_num_threads(cfg.threads)
         self.frames = 0
         self.episodes = 0
