@@ -34,6 +34,7 @@ import time
 
 import torch
 from tensordict import TensorDict
+from tensordict.nn import TensorDictParams
 from torch import nn
 
 from dockingrl.agents import make_agent
@@ -366,7 +367,8 @@ def write_paths(algo: str, seconds: float, rounds: int) -> None:
 def fast_paths(algo: str, seconds: float, rounds: int) -> None:
     """``fast_update``'s own paths against TorchRL's in the same update, with the default and
     the plain updates beside them, in alternating rounds: for SAC and TD3 the twin critics in
-    turn (``off_policy.CriticsInTurn``) against TorchRL's loop over them, for PPO the loss
+    turn (``off_policy.CriticsInTurn``) and the actor's own parameters unswapped
+    (``off_policy.ModuleOwnParams``) against TorchRL's loop and swaps, for PPO the loss
     calling its modules directly against its functional calls."""
     import dockingrl.agents.ppo as ppo_module
 
@@ -374,7 +376,12 @@ def fast_paths(algo: str, seconds: float, rounds: int) -> None:
         if algo != "ppo":
             update = torchrl_update(algo, fast_update=True)
             loss = update.__self__.loss
-            type(loss).__mro__[1]._make_vmap(loss)  # the TorchRL loss's own
+            torchrl_loss = next(
+                c for c in type(loss).__mro__ if c.__module__.startswith("torchrl.")
+            )
+            torchrl_loss._make_vmap(loss)  # the TorchRL loss's own
+            # and TorchRL's swap of the actor's parameters at each of its evaluations
+            loss.actor_network_params = TensorDictParams(loss.actor_network_params)
             return update
         stock = ppo_module.ClipPPOLoss
         ppo_module.ClipPPOLoss = lambda *a, **k: stock(*a, **{**k, "functional": True})

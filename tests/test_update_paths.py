@@ -60,7 +60,8 @@ def stock_soft_update(agent):
 
 def stock_critic_loop(agent):
     """TorchRL's own loop over the critics."""
-    type(agent.loss).__mro__[1]._make_vmap(agent.loss)
+    torchrl_loss = next(c for c in type(agent.loss).__mro__ if c.__module__.startswith("torchrl."))
+    torchrl_loss._make_vmap(agent.loss)
 
 
 def stock_actor_swaps(agent):

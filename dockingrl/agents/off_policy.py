@@ -193,6 +193,28 @@ def own_actor_params(loss: LossModule) -> None:
     loss.actor_network_params = ModuleOwnParams(loss.actor_network_params, loss.actor_network)
 
 
+class FastUpdatePaths:
+    """What ``deactivate_vmap`` (``fast_update`` on a CPU) changes in a TorchRL loss over an
+    actor and twin critics (mixed in before the loss's class): the critics run through
+    :class:`CriticsInTurn`, set as the loss's attribute ``critics_attr`` (reading inputs with
+    the critics' dimension first with ``batched_inputs``), and the actor's parameters are
+    :class:`ModuleOwnParams`. The same numbers as TorchRL's paths."""
+
+    critics_attr: str
+    batched_inputs: bool
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        if self.deactivate_vmap:
+            own_actor_params(self)
+
+    def _make_vmap(self) -> None:
+        super()._make_vmap()
+        if self.deactivate_vmap:
+            critics = CriticsInTurn(self.qvalue_network, batched_inputs=self.batched_inputs)
+            setattr(self, self.critics_attr, critics)
+
+
 def replay_buffer(cfg: OffPolicyOptions, device) -> TensorDictReplayBuffer:
     """A uniformly sampled replay buffer of ``cfg.buffer_size`` transitions on ``device``."""
     return TensorDictReplayBuffer(

@@ -7,28 +7,13 @@ from torchrl.objectives import SACLoss
 
 from dockingrl.agents.base import adam
 from dockingrl.agents.config import SACConfig
-from dockingrl.agents.off_policy import (
-    CriticsInTurn,
-    OffPolicyAgent,
-    own_actor_params,
-    vmap_ensembles,
-)
+from dockingrl.agents.off_policy import FastUpdatePaths, OffPolicyAgent, vmap_ensembles
 
 
-class TwinCriticSACLoss(SACLoss):
-    """TorchRL's ``SACLoss``; with ``deactivate_vmap`` the twin critics run through
-    :class:`CriticsInTurn` (the same numbers as TorchRL's loop over them) and the actor's
-    parameters are :class:`ModuleOwnParams` (no swap into the actor that holds them)."""
+class TwinCriticSACLoss(FastUpdatePaths, SACLoss):
+    """TorchRL's ``SACLoss``, with :class:`FastUpdatePaths` under ``deactivate_vmap``."""
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        if self.deactivate_vmap:
-            own_actor_params(self)
-
-    def _make_vmap(self) -> None:
-        super()._make_vmap()
-        if self.deactivate_vmap:
-            self._vmap_qnetworkN0 = CriticsInTurn(self.qvalue_network, batched_inputs=False)
+    critics_attr, batched_inputs = "_vmap_qnetworkN0", False
 
 
 class SACAgent(OffPolicyAgent):

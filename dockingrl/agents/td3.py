@@ -9,30 +9,16 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import TD3Loss
 
 from dockingrl.agents.config import TD3Config
-from dockingrl.agents.off_policy import (
-    CriticsInTurn,
-    OffPolicyAgent,
-    own_actor_params,
-    vmap_ensembles,
-)
+from dockingrl.agents.off_policy import FastUpdatePaths, OffPolicyAgent, vmap_ensembles
 
 
-class TwinCriticTD3Loss(TD3Loss):
-    """TorchRL's ``TD3Loss``; with ``deactivate_vmap`` the twin critics run through
-    :class:`CriticsInTurn` (the same numbers as TorchRL's loop over them), and the actor's
-    loss evaluates the first critic only, the one it reads (TorchRL's evaluates both and
-    discards the second's values; same loss, same gradients, one critic pass fewer); the
-    actor's parameters are :class:`ModuleOwnParams` (no swap into the actor that holds them)."""
+class TwinCriticTD3Loss(FastUpdatePaths, TD3Loss):
+    """TorchRL's ``TD3Loss``, with :class:`FastUpdatePaths` under ``deactivate_vmap``, where
+    the actor's loss also evaluates the first critic only, the one it reads (TorchRL's
+    evaluates both and discards the second's values; same loss, same gradients, one critic
+    pass fewer)."""
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        if self.deactivate_vmap:
-            own_actor_params(self)
-
-    def _make_vmap(self) -> None:
-        super()._make_vmap()
-        if self.deactivate_vmap:
-            self._vmap_qvalue_network00 = CriticsInTurn(self.qvalue_network, batched_inputs=True)
+    critics_attr, batched_inputs = "_vmap_qvalue_network00", True
 
     def actor_loss(self, tensordict):
         if not self.deactivate_vmap:
