@@ -75,6 +75,17 @@ def vmap_ensembles(cfg: RunOptions) -> bool:
     return not (cfg.fast_update and torch.device(cfg.device).type == "cpu")
 
 
+def _slot(module: nn.Module, path: tuple) -> tuple[dict, str]:
+    """The parameter or buffer table of ``module``'s submodule at ``path[:-1]`` that holds (or
+    would hold) the tensor named ``path[-1]``, and that name (an empty table where the
+    submodule is missing)."""
+    owner = module
+    for part in path[:-1]:
+        owner = getattr(owner, part, None)
+    table = getattr(owner, "_parameters", {})
+    return (table if path[-1] in table else getattr(owner, "_buffers", {})), path[-1]
+
+
 class CriticsInTurn:
     """What TorchRL's losses call to evaluate their Q-networks on the stacked parameters of
     the twin critics, with ``deactivate_vmap``: each critic in turn, as TorchRL's own loop
@@ -96,14 +107,7 @@ class CriticsInTurn:
         """``(key in params, parameter or buffer table, name)`` of each of the critic's
         tensors (``params`` is keyed from the ``TensorDictModule``, whose ``module`` this
         is)."""
-        slots = []
-        for key in params.keys(True, True):
-            owner = self.module
-            for part in key[1:-1]:
-                owner = getattr(owner, part)
-            table = owner._parameters if key[-1] in owner._parameters else owner._buffers
-            slots.append((key, table, key[-1]))
-        return slots
+        return [(key, *_slot(self.module, key[1:])) for key in params.keys(True, True)]
 
     def __call__(self, tensordict: TensorDictBase, params: TensorDictBase) -> TensorDictBase:
         if self._slots is None:
@@ -148,17 +152,13 @@ class ModuleOwnParams(TensorDictParams):
         held = []
         for key, tensor in self.items(True, True):
             key = _key(key)
-            owner = module
-            for part in key[:-1]:
-                owner = getattr(owner, part, None)
-            table = getattr(owner, "_parameters", {})
-            table = table if key[-1] in table else getattr(owner, "_buffers", {})
-            if not _same_memory(table.get(key[-1]), tensor):
+            table, name = _slot(module, key)
+            if not _same_memory(table.get(name), tensor):
                 held = None  # not the module's own: every to_module swaps
                 break
             flat = ".".join(key)
             ours = self._parameters if flat in self._parameters else self._buffers
-            held.append((ours, flat, tensor, table, key[-1], table[key[-1]]))
+            held.append((ours, flat, tensor, table, name, table[name]))
         # kept out of nn.Module's attribute tables: the module is not a submodule of these
         self.__dict__["_own"] = (module, held)
 
