@@ -232,3 +232,21 @@ def differences_from_recipe(run_dir: Path, recipe: str, **fields) -> set[str]:
     run = json.loads((run_dir / "config.json").read_text())
     expected = recipe_config_json(recipe, **fields)
     return {k for k in expected.keys() | run.keys() if expected.get(k) != run.get(k)}
+
+
+def check_committed_run(run_dir: Path, recipe: str, allowed: set[str], **fields) -> dict:
+    """Assert that the committed run ``run_dir`` is recipe ``recipe``'s config with ``fields``
+    set, apart from the fields in ``allowed`` (where it went, what it logged to, the recipe
+    named on its command line...), that it trained no more than the recipe's env steps (and
+    the last batch), and that its summary's success rate is its ``eval.json``'s. Returns the
+    run's ``config.json``."""
+    from dockingrl.recipes import load_recipe
+
+    differing = differences_from_recipe(run_dir, recipe, **fields)
+    assert differing <= allowed, differing - allowed
+    expected = load_recipe(recipe).make_config()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["frames"] <= expected.total_steps + expected.frames_per_batch
+    final = json.loads((run_dir / "eval.json").read_text())
+    assert summary["success_rate"] == final["success_rate"]
+    return json.loads((run_dir / "config.json").read_text())
