@@ -28,7 +28,7 @@ def test_sac_200k_is_sac_ln_with_two_updates_per_env_step_for_200k_env_steps():
     assert (cfg.algo, cfg.recipe, cfg.critic_layer_norm) == ("sac", "sac-200k", True)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_committed_runs_are_the_recipe(seed):
     run = RUNS / f"seed{seed}"
     check_committed_run(run, "sac-200k", RUN_FIELDS, scenario="compound", seed=seed)
