@@ -222,13 +222,15 @@ def test_a_fine_tune_names_its_first_stage_and_inherits_it(tmp_path):
 
 @pytest.mark.parametrize("name", recipe_names())
 def test_a_shipped_fine_tune_takes_the_runs_of_its_first_stage(name):
-    """A recipe that loads a replay buffer names the recipe it starts from, and that recipe's
-    networks are its own (else ``--init-from`` would refuse every run of it)."""
+    """A recipe that loads a replay buffer names the recipe it starts from (a fine-tune may
+    name one without loading a buffer), and the first stage's networks are the fine-tune's
+    (else ``--init-from`` would refuse every run of it)."""
     from dockingrl.training.checkpointing import network_differences
 
     recipe = load_recipe(name)
-    if not recipe.config.get("init_replay"):
-        assert recipe.first_stage == ""
+    if recipe.config.get("init_replay"):
+        assert recipe.first_stage
+    if not recipe.first_stage:
         return
     assert recipe.first_stage in recipe_names()
     stage = recipe_config_json(recipe.first_stage)  # as a run of it writes its config.json

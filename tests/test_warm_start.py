@@ -95,6 +95,11 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
             "no run folder",
         ),
         (
+            tiny_config("sac", "noise", tmp_path, init_from=str(sac_run)),
+            ValueError,
+            "scenario: compound there, noise here, observations of 12 and 6 numbers",
+        ),
+        (
             tiny_config("ppo", "noise", tmp_path, init_from=str(ppo_run), init_replay=True),
             ValueError,
             "no replay buffer",

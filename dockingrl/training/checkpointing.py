@@ -22,10 +22,33 @@ NETWORK_FIELDS = (
 )
 
 
+def observation_width(config) -> int | None:
+    """How many numbers the policy of a run with ``config`` (a config or its config.json's
+    dict) reads, or ``None`` where it names no known scenario."""
+    from dockingrl.scenarios import OBSERVATION_PARTS, SCENARIOS, observation_layout
+
+    get = config.get if isinstance(config, dict) else lambda k: getattr(config, k, None)
+    if get("scenario") not in SCENARIOS:
+        return None
+    layout = observation_layout(
+        get("scenario"),
+        observe_current=bool(get("observe_current")),
+        observe_command=bool(get("observe_command")),
+    )
+    return sum(len(OBSERVATION_PARTS[key]) for key in layout)
+
+
 def network_differences(source: dict, cfg) -> list[str]:
     """The :data:`NETWORK_FIELDS` in which the config.json ``source`` and the config ``cfg``
-    differ, each as ``"name: <source's> there, <cfg's> here"``."""
+    differ, each as ``"name: <source's> there, <cfg's> here"``, and the scenario where the
+    two policies read observations of different widths."""
     differ = []
+    theirs, mine = observation_width(source), observation_width(cfg)
+    if None not in (theirs, mine) and theirs != mine and source["scenario"] != cfg.scenario:
+        differ.append(
+            f"scenario: {source['scenario']} there, {cfg.scenario} here, "
+            f"observations of {theirs} and {mine} numbers"
+        )
     for name in NETWORK_FIELDS:
         if name not in source or not hasattr(cfg, name):
             continue
