@@ -40,6 +40,28 @@ def test_sac_starts_from_the_other_runs_networks_and_replay(tiny_runs, tmp_path,
     assert (trainer.frames, trainer.agent.updates, trainer.candidates) == (0, 0, [])
 
 
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_a_warm_start_steps_at_its_own_learning_rate(algo, tiny_runs, tmp_path, short_episodes):
+    """The optimisers' moments come from the source run, their settings from this run's
+    config (a torch optimiser's ``load_state_dict`` alone would restore the source's rate)."""
+    source_cfg, _, source = tiny_runs(algo, "compound")
+    saved = read_state(latest_checkpoint(source / "checkpoints"))["agent"]["optimizers"]
+    lr = source_cfg.lr / 3
+    trainer = Trainer(
+        tiny_config(algo, "compound", tmp_path, init_from=str(source), lr=lr),
+        tmp_path / "fine",
+        progress=False,
+    )
+    trainer.warm_start()
+    for name, optimizer in trainer.agent.optimizers.items():
+        assert [g["lr"] for g in optimizer.param_groups] == [lr] * len(optimizer.param_groups)
+        assert [g["lr"] for g in saved[name]["param_groups"]] != [lr]
+        moments = optimizer.state_dict()["state"]
+        assert moments.keys() == saved[name]["state"].keys() and moments, name
+        for i, entry in moments.items():
+            assert torch.equal(entry["exp_avg"], saved[name]["state"][i]["exp_avg"]), (name, i)
+
+
 def test_without_init_replay_the_buffer_starts_empty(tiny_runs, tmp_path, short_episodes):
     _, _, source = tiny_runs("sac", "compound")
     cfg = tiny_config("sac", "compound", tmp_path, init_from=str(source))

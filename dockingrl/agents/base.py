@@ -96,13 +96,23 @@ class Agent:
             state["averaged"] = self.average.module.state_dict()
         return state
 
-    def load_state_dict(self, state: dict, *, fresh_average: bool = False) -> None:
+    def load_state_dict(
+        self, state: dict, *, fresh_average: bool = False, own_settings: bool = False
+    ) -> None:
         """Load :meth:`state_dict`'s ``state``. ``fresh_average``: where the agent averages its
         actor and ``state`` holds no averaged actor (a run started from one that did not
-        average), the average starts at the loaded actor instead of being refused."""
+        average), the average starts at the loaded actor instead of being refused.
+        ``own_settings``: the optimisers keep this agent's settings (learning rate, betas,
+        fused...) and take only their moments from ``state``, as a run started from another
+        one at another learning rate needs (``load_state_dict`` of a torch optimiser takes the
+        saved settings too)."""
         self.loss.load_state_dict(state["loss"])
         for k, o in self.optimizers.items():
+            own = [{n: v for n, v in g.items() if n != "params"} for g in o.param_groups]
             o.load_state_dict(state["optimizers"][k])
+            if own_settings:
+                for group, settings in zip(o.param_groups, own):
+                    group.update(settings)
         self.updates = state["updates"]
         if "generator" in state:
             self.extra["generator"].set_state(state["generator"])

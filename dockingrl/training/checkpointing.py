@@ -146,16 +146,16 @@ class Checkpoints:
         del self.candidates[self.cfg.keep_candidates :]
         return True
 
-    def _load_agent(
-        self, path: Path, state: dict, replay: bool, fresh_average: bool = False
-    ) -> None:
+    def _load_agent(self, path: Path, state: dict, replay: bool, warm: bool = False) -> None:
         """Put the agent of the checkpoint ``path`` (its ``state``, read) into this run's, with
-        its replay buffer where ``replay`` and it has one (``fresh_average``: as
-        :meth:`~dockingrl.agents.Agent.load_state_dict`); ArtifactError where it does not fit."""
+        its replay buffer where ``replay`` and it has one; ``warm``: a warm start, whose agent
+        may start its average and keeps its optimisers' settings (``fresh_average`` and
+        ``own_settings`` of :meth:`~dockingrl.agents.Agent.load_state_dict`). ArtifactError
+        where it does not fit."""
         from dockingrl.io import ArtifactError, first_line
 
         try:
-            self.agent.load_state_dict(state["agent"], fresh_average=fresh_average)
+            self.agent.load_state_dict(state["agent"], fresh_average=warm, own_settings=warm)
             if replay and state["replay"] is not None:
                 self.agent.replay_buffer.loads(path / "replay")
         except (KeyError, IndexError, RuntimeError, TypeError, ValueError) as exc:
@@ -202,8 +202,8 @@ class Checkpoints:
         if cfg.init_replay and (self.agent.replay_buffer is None or state["replay"] is None):
             raise ValueError(f"init_replay: {path} holds no replay buffer to start from")
         # where this run averages its actor and the source run did not, the average starts at
-        # the loaded actor
-        self._load_agent(path, state, replay=cfg.init_replay, fresh_average=True)
+        # the loaded actor; the optimisers step at this run's learning rate, not the source's
+        self._load_agent(path, state, replay=cfg.init_replay, warm=True)
         self.agent.updates = 0
         return {"run": str(source), "frames": state["frames"]}
 
