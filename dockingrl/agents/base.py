@@ -111,7 +111,7 @@ class Agent:
             own = [{n: v for n, v in g.items() if n != "params"} for g in o.param_groups]
             o.load_state_dict(state["optimizers"][k])
             if own_settings:
-                for group, settings in zip(o.param_groups, own):
+                for group, settings in zip(o.param_groups, own, strict=True):
                     group.update(settings)
         self.updates = state["updates"]
         if "generator" in state:
