@@ -65,7 +65,8 @@ class RunOptions:
         default=0.0,
     )
     init_from: str = documented(
-        "a run folder whose latest checkpoint's networks and optimiser states start this run: "
+        "a run folder whose latest checkpoint's networks and optimiser moments start this run "
+        "(the learning rate and the optimisers' other settings are this run's): "
         "fine-tuning a trained agent on another task, e.g. a stress-ladder level; the env "
         "steps, updates, periodic evaluations and kept actors start anew (not in the paper)",
         default="",
