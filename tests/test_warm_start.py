@@ -41,25 +41,37 @@ def test_sac_starts_from_the_other_runs_networks_and_replay(tiny_runs, tmp_path,
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3"])
-def test_a_warm_start_steps_at_its_own_learning_rate(algo, tiny_runs, tmp_path, short_episodes):
-    """The optimisers' moments come from the source run, their settings from this run's
-    config (a torch optimiser's ``load_state_dict`` alone would restore the source's rate)."""
+def test_a_warm_start_keeps_its_own_settings(algo, tiny_runs, tmp_path, short_episodes):
+    """The networks and the optimisers' moments come from the source run; the learning rate,
+    the discount and SAC's fixed temperature from this run's config (a torch module's or
+    optimiser's ``load_state_dict`` alone would restore the source's)."""
     source_cfg, _, source = tiny_runs(algo, "compound")
-    saved = read_state(latest_checkpoint(source / "checkpoints"))["agent"]["optimizers"]
-    lr = source_cfg.lr / 3
+    saved = read_state(latest_checkpoint(source / "checkpoints"))["agent"]
+    lr, gamma = source_cfg.lr / 3, 0.9
+    own = {"lr": lr, "gamma": gamma, **({"alpha": 0.1} if algo == "sac" else {})}
     trainer = Trainer(
-        tiny_config(algo, "compound", tmp_path, init_from=str(source), lr=lr),
+        tiny_config(algo, "compound", tmp_path, init_from=str(source), **own),
         tmp_path / "fine",
         progress=False,
     )
     trainer.warm_start()
+    loss = trainer.agent.loss
+    for k, v in _params(saved).items():
+        if "network_params" in k:
+            assert torch.equal(loss.state_dict()[k], v), k
+    assert float(loss._value_estimator.gamma) == pytest.approx(gamma)
+    assert float(saved["loss"]["_value_estimator.gamma"]) != pytest.approx(gamma)
+    if algo == "sac":
+        assert float(loss.log_alpha.exp()) == pytest.approx(0.1)
+        assert float(saved["loss"]["log_alpha"].exp()) != pytest.approx(0.1)
     for name, optimizer in trainer.agent.optimizers.items():
         assert [g["lr"] for g in optimizer.param_groups] == [lr] * len(optimizer.param_groups)
-        assert [g["lr"] for g in saved[name]["param_groups"]] != [lr]
+        assert [g["lr"] for g in saved["optimizers"][name]["param_groups"]] != [lr]
         moments = optimizer.state_dict()["state"]
-        assert moments.keys() == saved[name]["state"].keys() and moments, name
+        assert moments.keys() == saved["optimizers"][name]["state"].keys() and moments, name
         for i, entry in moments.items():
-            assert torch.equal(entry["exp_avg"], saved[name]["state"][i]["exp_avg"]), (name, i)
+            expected = saved["optimizers"][name]["state"][i]["exp_avg"]
+            assert torch.equal(entry["exp_avg"], expected), (name, i)
 
 
 def test_without_init_replay_the_buffer_starts_empty(tiny_runs, tmp_path, short_episodes):

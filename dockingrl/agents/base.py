@@ -102,11 +102,22 @@ class Agent:
         """Load :meth:`state_dict`'s ``state``. ``fresh_average``: where the agent averages its
         actor and ``state`` holds no averaged actor (a run started from one that did not
         average), the average starts at the loaded actor instead of being refused.
-        ``own_settings``: the optimisers keep this agent's settings (learning rate, betas,
-        fused...) and take only their moments from ``state``, as a run started from another
-        one at another learning rate needs (``load_state_dict`` of a torch optimiser takes the
-        saved settings too)."""
-        self.loss.load_state_dict(state["loss"])
+        ``own_settings``: this agent keeps its settings and takes only what was learned from
+        ``state``, as a run started from another one with other settings needs: the loss
+        takes the networks, their targets and the learned parameters (a learned temperature)
+        and keeps its own fixed values (a fixed temperature, the target entropy, the
+        discount, PPO's coefficients); the optimisers take their moments and keep their
+        learning rate, betas, fused... (``load_state_dict`` of a torch module or optimiser
+        takes the saved values of all of them)."""
+        loss = state["loss"]
+        if own_settings:
+            mine = self.loss.state_dict()
+            learned = {name for name, _ in self.loss.named_parameters()}
+            loss = {
+                k: v if "network_params" in k or k in learned or k not in mine else mine[k]
+                for k, v in loss.items()
+            }
+        self.loss.load_state_dict(loss)
         for k, o in self.optimizers.items():
             own = [{n: v for n, v in g.items() if n != "params"} for g in o.param_groups]
             o.load_state_dict(state["optimizers"][k])

@@ -66,7 +66,7 @@ class RunOptions:
     )
     init_from: str = documented(
         "a run folder whose latest checkpoint's networks and optimiser moments start this run "
-        "(the learning rate and the optimisers' other settings are this run's): "
+        "(its settings, learning rate, discount, a fixed temperature..., are this run's): "
         "fine-tuning a trained agent on another task, e.g. a stress-ladder level; the env "
         "steps, updates, periodic evaluations and kept actors start anew (not in the paper)",
         default="",
