@@ -63,6 +63,12 @@ def observation_layout(
     )
 
 
+def observation_size(keys) -> int:
+    """How many numbers an observation that concatenates the entries ``keys`` (an
+    :func:`observation_layout`) holds."""
+    return sum(len(OBSERVATION_PARTS[key]) for key in keys)
+
+
 def mirror_signs(
     scenario: str, *, observe_current: bool = False, observe_command: bool = False
 ) -> torch.Tensor:

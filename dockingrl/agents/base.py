@@ -119,9 +119,11 @@ class Agent:
             }
         self.loss.load_state_dict(loss)
         for k, o in self.optimizers.items():
-            own = [{n: v for n, v in g.items() if n != "params"} for g in o.param_groups]
-            o.load_state_dict(state["optimizers"][k])
+            own = None
             if own_settings:
+                own = [{n: v for n, v in g.items() if n != "params"} for g in o.param_groups]
+            o.load_state_dict(state["optimizers"][k])
+            if own is not None:
                 for group, settings in zip(o.param_groups, own, strict=True):
                     group.update(settings)
         self.updates = state["updates"]

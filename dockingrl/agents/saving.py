@@ -17,7 +17,7 @@ from dockingrl.io import (
     require_keys,
     save_artifact,
 )
-from dockingrl.scenarios import OBSERVATION_PARTS, SCENARIOS, observation_layout
+from dockingrl.scenarios import SCENARIOS, observation_layout, observation_size
 
 FORMAT = "dockingrl.policy/2"
 #: version 1 had no content hash and no ``observation_layout``
@@ -239,7 +239,7 @@ def upgrade_policy(path: str | Path) -> str:
     if carried is not None and carried.get("format") != FILTER_FORMAT:
         payload["filter_params"] = upgrade_payload(carried)
     layout = policy_layout(payload["scenario"], payload["obs_dim"], payload["config"])
-    numbers = sum(len(OBSERVATION_PARTS[k]) for k in layout["keys"])
+    numbers = observation_size(layout["keys"])
     if numbers != layout["obs_dim"]:
         raise ArtifactError(
             f"{path}: its config gives an observation of {numbers} numbers "

@@ -25,7 +25,7 @@ NETWORK_FIELDS = (
 def observation_width(config) -> int | None:
     """How many numbers the policy of a run with ``config`` (a config or its config.json's
     dict) reads, or ``None`` where it names no known scenario."""
-    from dockingrl.scenarios import OBSERVATION_PARTS, SCENARIOS, observation_layout
+    from dockingrl.scenarios import SCENARIOS, observation_layout, observation_size
 
     get = config.get if isinstance(config, dict) else lambda k: getattr(config, k, None)
     if get("scenario") not in SCENARIOS:
@@ -35,7 +35,7 @@ def observation_width(config) -> int | None:
         observe_current=bool(get("observe_current")),
         observe_command=bool(get("observe_command")),
     )
-    return sum(len(OBSERVATION_PARTS[key]) for key in layout)
+    return observation_size(layout)
 
 
 def network_differences(source: dict, cfg) -> list[str]:
@@ -149,7 +149,7 @@ class Checkpoints:
     def _load_agent(self, path: Path, state: dict, replay: bool, warm: bool = False) -> None:
         """Put the agent of the checkpoint ``path`` (its ``state``, read) into this run's, with
         its replay buffer where ``replay`` and it has one; ``warm``: a warm start, whose agent
-        may start its average and keeps its optimisers' settings (``fresh_average`` and
+        may start its average and keeps its own settings (``fresh_average`` and
         ``own_settings`` of :meth:`~dockingrl.agents.Agent.load_state_dict`). ArtifactError
         where it does not fit."""
         from dockingrl.io import ArtifactError, first_line
@@ -202,7 +202,7 @@ class Checkpoints:
         if cfg.init_replay and (self.agent.replay_buffer is None or state["replay"] is None):
             raise ValueError(f"init_replay: {path} holds no replay buffer to start from")
         # where this run averages its actor and the source run did not, the average starts at
-        # the loaded actor; the optimisers step at this run's learning rate, not the source's
+        # the loaded actor; the learning rate, discount and other settings stay this run's
         self._load_agent(path, state, replay=cfg.init_replay, warm=True)
         self.agent.updates = 0
         return {"run": str(source), "frames": state["frames"]}
