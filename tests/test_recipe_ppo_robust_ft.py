@@ -1,7 +1,6 @@
-"""The ``ppo-robust-ft`` recipe: what it changes from its first stage ``ppo-fast-follow``, and
-that the committed runs of ``results/stress/ppo_robust_ft/`` are the two stages' configs, each
-fine-tune from the committed first stage of its seed (its smoke run is ``test_recipes``'s, with
-every recipe's)."""
+"""The ``ppo-robust-ft`` recipe: what it changes from its first stage ``ppo-fast-follow``, a
+smoke run of the two stages, and that the committed runs of ``results/stress/ppo_robust_ft/``
+are the two stages' configs, each fine-tune from the committed first stage of its seed."""
 
 import json
 from pathlib import Path

@@ -1,6 +1,7 @@
 """The ``sac-ln-robust-ft-avg`` recipe: what it changes from ``sac-ln-robust-ft``, and that the
 committed fine-tunes of ``results/stress/robust_ft_ln_avg/`` are its config, each from the
-committed first stage of its seed (its smoke run is ``test_recipes``'s, with every recipe's)."""
+committed first stage of its seed (the smoke run of the two stages is ``sac-ln-robust-ft``'s, in
+``test_recipe_sac_ln``; this recipe adds one field to it)."""
 
 import json
 from pathlib import Path

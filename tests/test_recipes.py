@@ -152,7 +152,7 @@ def test_an_unknown_recipe_name_lists_the_shipped_ones():
         load_recipe("no-such-recipe")
 
 
-@pytest.mark.parametrize("name", [*SIX, "td3-200k"])
+@pytest.mark.parametrize("name", [*SIX, "td3-200k", "sac-200k"])
 def test_train_with_every_recipe(name, tmp_path, capsys, short_episodes):
     algo = load_recipe(name).algo
     argv = [
