@@ -228,9 +228,21 @@ def recipe_config_json(recipe: str, **fields) -> dict:
 
 def differences_from_recipe(run_dir: Path, recipe: str, **fields) -> set[str]:
     """The fields in which the ``config.json`` of ``run_dir`` differs from recipe's config with
-    ``fields`` set (compared as config.json holds them)."""
+    ``fields`` set (compared as config.json holds them). A field the run's file lacks (written
+    before the field existed) counts as its default."""
+    from dataclasses import MISSING
+    from dataclasses import fields as config_fields
+
+    from dockingrl.agents.config import CONFIGS
+
     run = json.loads((run_dir / "config.json").read_text())
     expected = recipe_config_json(recipe, **fields)
+    defaults = {
+        f.name: json.loads(json.dumps(f.default))
+        for f in config_fields(CONFIGS[expected["algo"]])
+        if f.default is not MISSING
+    }
+    run = {**{k: v for k, v in defaults.items() if k not in run}, **run}
     return {k for k in expected.keys() | run.keys() if expected.get(k) != run.get(k)}
 
 

@@ -37,8 +37,8 @@ SHARED = (
     "recipe"
 ).split()
 OFF_POLICY = (
-    "batch_size gamma lr buffer_size start_steps tau updates_per_step frames_per_batch n_steps "
-    "critic_layer_norm mirror_augment"
+    "batch_size gamma lr lr_schedule buffer_size start_steps tau updates_per_step "
+    "frames_per_batch n_steps critic_layer_norm mirror_augment"
 ).split()
 SAVED_ORDER = {
     SACConfig: SHARED + OFF_POLICY + "alpha learn_alpha target_entropy privileged_critic".split(),

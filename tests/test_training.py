@@ -421,27 +421,34 @@ def test_ppo_estimates_advantages_every_epoch_or_once_per_rollout(
     assert len(calls) == rollouts * (cfg.epochs if every_epoch else 1)
 
 
-def test_ppo_linear_lr_schedule_falls_with_progress(tmp_path):
-    """``lr_schedule="linear"`` sets Adam's rate to ``lr (1 - progress)`` before each update;
-    ``constant`` keeps ``lr``; an unknown schedule is refused."""
+@pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
+def test_linear_lr_schedule_falls_with_progress(tmp_path, algo):
+    """``lr_schedule="linear"`` sets every optimiser's rate (SAC's temperature's too) to
+    ``lr (1 - progress)`` before the updates of a batch; ``constant`` keeps ``lr``; an
+    unknown schedule is refused."""
     from dockingrl.agents import make_agent
     from dockingrl.scenarios import make_env
 
     env = make_env("noise", 4, seed=1)
+    extra = {"ppo": {"epochs": 1}, "sac": {"learn_alpha": True}, "td3": {}}[algo]
     rates = {}
     for schedule in ("constant", "linear"):
-        cfg = tiny_config("ppo", "noise", tmp_path, epochs=1, lr=1e-3, lr_schedule=schedule)
+        cfg = tiny_config(algo, "noise", tmp_path, lr=1e-3, lr_schedule=schedule, **extra)
         agent = make_agent(cfg, 6, env.action_spec[0].clone(), 30.0)
         data = collect_once(env, agent.exploration_policy, 64)
         for progress in (0.0, 0.75):
-            losses = agent.learn(data, progress=progress)
-            rates[schedule, progress] = agent.optimizers["all"].param_groups[0]["lr"]
-            assert losses["lr"] == pytest.approx(rates[schedule, progress])
+            losses = agent.learn(data, num_updates=1, progress=progress)
+            groups = [g for o in agent.optimizers.values() for g in o.param_groups]
+            assert len({g["lr"] for g in groups}) == 1
+            rates[schedule, progress] = groups[0]["lr"]
+            if algo == "ppo":
+                assert losses["lr"] == pytest.approx(rates[schedule, progress])
+        assert len(agent.optimizers) == {"ppo": 1, "sac": 3, "td3": 2}[algo]
     assert rates["constant", 0.0] == rates["constant", 0.75] == pytest.approx(1e-3)
     assert rates["linear", 0.0] == pytest.approx(1e-3)
     assert rates["linear", 0.75] == pytest.approx(2.5e-4)
     with pytest.raises(ValueError, match="lr_schedule"):
-        tiny_config("ppo", "noise", tmp_path, lr_schedule="cosine")
+        tiny_config(algo, "noise", tmp_path, lr_schedule="cosine")
 
 
 def test_keep_best_ends_with_the_actor_of_the_best_periodic_evaluation(

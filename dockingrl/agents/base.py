@@ -143,6 +143,19 @@ def scalar(value: torch.Tensor) -> float:
     return float(value.detach())
 
 
+def schedule_lr(optimizers, cfg: TrainConfig, progress: float) -> float:
+    """Set every optimiser of ``optimizers`` to ``cfg.lr`` under ``cfg.lr_schedule`` at
+    ``progress`` (the fraction of ``total_steps`` done): the rate itself (``constant``) or
+    ``cfg.lr * (1 - progress)`` (``linear``, 0 at ``total_steps``). Returns the rate."""
+    lr = cfg.lr
+    if cfg.lr_schedule == "linear":
+        lr = cfg.lr * (1.0 - min(max(progress, 0.0), 1.0))
+    for optim in optimizers:
+        for group in optim.param_groups:
+            group["lr"] = lr
+    return lr
+
+
 def adam(params, cfg: TrainConfig) -> torch.optim.Adam:
     """An Adam optimiser over ``params`` at ``cfg.lr``: fused with ``cfg.fast_update`` (about a
     third of the time per step on a CPU; other roundings than the default's per-tensor step)."""

@@ -20,8 +20,8 @@ from typing import Any, get_type_hints
 
 from dockingrl.agents.network_options import MIRROR_SYMMETRIC, NetworkOptions
 from dockingrl.agents.off_policy_options import OffPolicyOptions, SACOptions, TD3Options
-from dockingrl.agents.option_fields import documented, refuse
-from dockingrl.agents.ppo_options import ACTIVATIONS, LR_SCHEDULES, PPOOptions
+from dockingrl.agents.option_fields import LR_SCHEDULES, documented, refuse
+from dockingrl.agents.ppo_options import ACTIVATIONS, PPOOptions
 from dockingrl.agents.reward_shaping import RewardShaping
 from dockingrl.agents.run_options import LOGGERS, RunOptions
 from dockingrl.agents.world_options import WorldOptions

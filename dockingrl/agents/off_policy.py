@@ -16,7 +16,7 @@ from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import RandomSampler
 from torchrl.objectives import LossModule, SoftUpdate
 
-from dockingrl.agents.base import Agent, adam, scalar
+from dockingrl.agents.base import Agent, adam, scalar, schedule_lr
 from dockingrl.agents.config import OffPolicyConfig, TrainConfig
 from dockingrl.agents.mirror import config_mirror_signs, mirror_transitions
 from dockingrl.agents.networks import PRIVILEGED_KEYS, make_critic
@@ -286,7 +286,9 @@ class OffPolicyAgent(Agent):
         self, data: TensorDictBase, num_updates: int = 0, progress: float = 0.0
     ) -> dict[str, float]:
         """Store ``data`` (``(num_envs, T)``; mirrored too with ``mirror_augment``) and run
-        ``num_updates`` updates. Returns mean losses (``losses/...``)."""
+        ``num_updates`` updates at the rate of ``lr_schedule`` at ``progress`` (the fraction of
+        ``total_steps`` done before ``data``). Returns mean losses (``losses/...``)."""
+        schedule_lr(self.optimizers.values(), self.config, progress)
         transitions = self.window(data.select(*transition_keys(self.config))).reshape(-1)
         self.replay_buffer.extend(transitions)
         if self.config.mirror_augment:

@@ -6,7 +6,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from dockingrl.agents.option_fields import check_ranges, documented
+from dockingrl.agents.option_fields import (
+    check_lr_schedule,
+    check_ranges,
+    documented,
+    lr_schedule_field,
+)
 
 
 @dataclass
@@ -16,6 +21,7 @@ class OffPolicyOptions:
     batch_size: int = documented("minibatch size", default=256)
     gamma: float = documented("discount", default=0.99)
     lr: float = documented("Adam learning rate, actor and critics", default=3e-4)
+    lr_schedule: str = lr_schedule_field()
     buffer_size: int = documented("replay buffer capacity", default=1_000_000)
     start_steps: int = documented("uniformly random env steps before learning", default=10_000)
     tau: float = documented("target-network soft-update rate (every target update)", default=0.005)
@@ -49,6 +55,7 @@ class OffPolicyOptions:
             unit=("tau", "gamma"),
             non_negative=("start_steps",),
         )
+        check_lr_schedule(self)
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             raise ValueError(
                 f"{type(self).__name__}.buffer_size: must hold at least one batch "

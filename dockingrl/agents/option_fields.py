@@ -6,10 +6,28 @@ from __future__ import annotations
 from dataclasses import field
 from typing import Any
 
+#: the learning-rate schedules of ``lr_schedule``
+LR_SCHEDULES = ("constant", "linear")
+
 
 def documented(text: str, **kwargs) -> Any:
     """A config field whose ``text`` is its command-line option's help."""
     return field(metadata={"doc": text}, **kwargs)
+
+
+def lr_schedule_field() -> Any:
+    """The ``lr_schedule`` field every algorithm has."""
+    return documented(
+        "constant, or linear: the learning rate falls linearly to 0 at total_steps "
+        "(not in the paper)",
+        default="constant",
+    )
+
+
+def check_lr_schedule(cfg) -> None:
+    """Refuse an ``lr_schedule`` that is not one of :data:`LR_SCHEDULES`."""
+    if cfg.lr_schedule not in LR_SCHEDULES:
+        refuse(cfg, "lr_schedule", f"valid: {', '.join(LR_SCHEDULES)}")
 
 
 def refuse(cfg, name: str, why: str) -> None:

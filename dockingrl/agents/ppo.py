@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from dockingrl.agents.base import Agent, adam, scalar
+from dockingrl.agents.base import Agent, adam, scalar, schedule_lr
 from dockingrl.agents.config import PPOConfig
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
 from dockingrl.agents.networks import QValueModule, mlp
@@ -81,12 +81,8 @@ class PPOAgent(Agent):
         """PPO's epochs over ``data`` (``(num_envs, T)``; ``num_updates`` is not used);
         ``progress`` (the fraction of ``total_steps`` done before ``data``) sets the learning
         rate of ``lr_schedule="linear"``. Returns mean losses (``losses/...``)."""
-        cfg, optim = self.config, self.optimizers["all"]
-        lr = cfg.lr
-        if cfg.lr_schedule == "linear":
-            lr = cfg.lr * (1.0 - min(max(progress, 0.0), 1.0))
-        for group in optim.param_groups:
-            group["lr"] = lr
+        cfg = self.config
+        lr = schedule_lr(self.optimizers.values(), cfg, progress)
         frames = data.numel()
         if cfg.reward_scale != 1.0:
             data = data.clone(recurse=False)

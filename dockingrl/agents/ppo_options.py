@@ -5,9 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from dockingrl.agents.option_fields import check_ranges, documented
+from dockingrl.agents.option_fields import (
+    check_lr_schedule,
+    check_ranges,
+    documented,
+    lr_schedule_field,
+)
 
-LR_SCHEDULES = ("constant", "linear")
 #: hidden-layer activations: option name -> ``torch.nn`` class name
 ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh"}
 
@@ -17,11 +21,7 @@ class PPOOptions:
     """PPO's rollouts, loss and optimiser, and its networks' activation and initialisation."""
 
     lr: float = documented("Adam learning rate", default=3e-4)
-    lr_schedule: str = documented(
-        "constant, or linear: the learning rate falls linearly to 0 at total_steps "
-        "(not in Table 5)",
-        default="constant",
-    )
+    lr_schedule: str = lr_schedule_field()
     steps_per_env: int = documented("rollout length per env and update (n_steps)", default=2048)
     minibatch_size: int = documented("minibatch size", default=64)
     epochs: int = documented("passes over each rollout", default=10)
@@ -72,10 +72,7 @@ class PPOOptions:
         )
         if self.steps_per_env < 2:
             raise ValueError(f"{name}.steps_per_env: must be >= 2")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(
-                f"{name}.lr_schedule: valid: {', '.join(LR_SCHEDULES)} (got {self.lr_schedule!r})"
-            )
+        check_lr_schedule(self)
         if self.activation not in ACTIVATIONS:
             raise ValueError(
                 f"{name}.activation: valid: {', '.join(ACTIVATIONS)} (got {self.activation!r})"
