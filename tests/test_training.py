@@ -619,6 +619,60 @@ def test_train_level_sets_the_whole_world_of_the_run(tmp_path, short_episodes, m
         tiny_config("sac", "compound", tmp_path, train_level="L9")
 
 
+def test_train_curriculum_steps_the_training_world_through_its_levels(
+    tmp_path, short_episodes, monkeypatch
+):
+    """``train_curriculum="L0,L3"`` at ``train_level`` L5: the training env of each third of
+    the run is built at its level (from the first batch at or past the stage's start), the
+    evaluations stay at L5; without a curriculum one env, at ``train_level``, trains the run;
+    an unknown level is refused, named."""
+    from dockingrl.env.levels import LEVELS
+    from dockingrl.evaluation import runs as evaluation_runs
+    from dockingrl.training import options, trainer
+
+    built, evaluated = [], []
+    training_env = trainer.training_env
+    monkeypatch.setattr(
+        trainer,
+        "training_env",
+        lambda cfg, kwargs, frames: (
+            built.append((frames, kwargs["config"])) or training_env(cfg, kwargs, frames)
+        ),
+    )
+    make_env = evaluation_runs.make_env
+    monkeypatch.setattr(
+        evaluation_runs,
+        "make_env",
+        lambda *a, **k: evaluated.append(k["config"]) or make_env(*a, **k),
+    )
+    cfg = tiny_config("sac", "compound", tmp_path, train_level="L5", train_curriculum="L0,L3")
+    assert options.curriculum_stages(cfg) == [("L0", 133), ("L3", 266), ("L5", 400)]
+    assert [options.stage_at(cfg, f)[0] for f in (0, 132, 133, 300, 399, 400, 500)] == [
+        "L0",
+        "L0",
+        "L3",
+        "L5",
+        "L5",
+        "L5",
+        "L5",
+    ]
+    result = train(cfg, progress=False)
+    assert result["summary"]["frames"] == cfg.total_steps == 400
+    assert [frames for frames, _ in built] == [0, 200, 300]  # batches of 100 env steps
+    l0, l3, l5 = (world for _, world in built)
+    assert not l0.realistic
+    assert l3.mass_scale == LEVELS["L3"][1]["mass_scale"] and l3.usbl_period == l0.usbl_period
+    assert l5.usbl_period == LEVELS["L5"][1]["usbl_period"] and l5.mass_scale == l3.mass_scale
+    assert evaluated and all(world == options.env_kwargs(cfg)["config"] for world in evaluated)
+    saved = json.loads((Path(result["run_dir"]) / "config.json").read_text())
+    assert saved["train_curriculum"] == "L0,L3"
+    built.clear()
+    train(tiny_config("sac", "compound", tmp_path / "flat", train_level="L5"), progress=False)
+    assert [frames for frames, _ in built] == [0] and built[0][1].realistic
+    with pytest.raises(ValueError, match="train_curriculum: unknown stress level 'L7'"):
+        tiny_config("sac", "compound", tmp_path, train_curriculum="L1,L7")
+
+
 def test_compensate_latency_reaches_the_training_filter_and_the_saved_policy(
     tmp_path, short_episodes
 ):

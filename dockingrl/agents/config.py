@@ -86,6 +86,7 @@ TRAIN_FIELDS = (
     "lateral_current_fraction",
     "near_start_fraction",
     "train_level",
+    "train_curriculum",
     "miss_penalty_floor",
     "passed_station_penalty",
     "time_budget_s",

@@ -13,6 +13,11 @@ from dockingrl.env.levels import LEVELS
 from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
 
 
+def curriculum_levels(curriculum: str) -> list[str]:
+    """The levels of a ``train_curriculum`` string, in order (none for ``''``)."""
+    return [level.strip() for level in curriculum.split(",") if level.strip()]
+
+
 @dataclass
 class WorldOptions:
     """The env a run trains in and the observation its policy reads."""
@@ -48,6 +53,13 @@ class WorldOptions:
         "takes: its training env and all its evaluations (L0: the paper's task; not in the "
         "paper)",
         default="L0",
+    )
+    train_curriculum: str = documented(
+        "stress-ladder levels, comma-separated, that the training env passes through before "
+        "train_level, each for an equal share of total_steps ('L1,L4' with train_level L5: "
+        "a third of the run at L1, a third at L4, the last third at L5); evaluations stay at "
+        "train_level ('': none; not in the paper)",
+        default="",
     )
     compensate_latency: bool = documented(
         "the EKF of a filtered scenario compensates the USBL latency of the run's world "
@@ -89,6 +101,13 @@ class WorldOptions:
             refuse(self, "scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
         if self.train_level not in LEVELS:
             refuse(self, "train_level", f"unknown stress level; valid: {', '.join(LEVELS)}")
+        for level in curriculum_levels(self.train_curriculum):
+            if level not in LEVELS:
+                refuse(
+                    self,
+                    "train_curriculum",
+                    f"unknown stress level {level!r}; valid: {', '.join(LEVELS)}",
+                )
         check_ranges(
             self,
             counts=("action_repeat",),

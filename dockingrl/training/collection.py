@@ -42,10 +42,12 @@ def training_env(cfg: TrainConfig, env_kwargs: dict, frames: int):
     )
 
 
-def make_collector(cfg: TrainConfig, env, policy, frames: int) -> Collector:
-    """The collector of the rest of a run that has trained ``frames`` env steps: PPO's
-    batches of ``steps_per_env`` per env; SAC's and TD3's of ``frames_per_batch``, random
-    actions until ``start_steps``."""
+def make_collector(
+    cfg: TrainConfig, env, policy, frames: int, until: int | None = None
+) -> Collector:
+    """The collector of a run that has trained ``frames`` env steps, to ``until`` env steps
+    (``total_steps`` by default): PPO's batches of ``steps_per_env`` per env; SAC's and TD3's
+    of ``frames_per_batch``, random actions until ``start_steps``."""
     # the collector counts transitions: one per action_repeat env steps
     repeat = cfg.action_repeat
     if cfg.algo == "ppo":
@@ -57,7 +59,7 @@ def make_collector(cfg: TrainConfig, env, policy, frames: int) -> Collector:
         )
         random_frames = -(-max(0, cfg.start_steps - frames) // repeat)
         random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
-    remaining = -(-(cfg.total_steps - frames) // repeat)
+    remaining = -(-((until or cfg.total_steps) - frames) // repeat)
     return Collector(
         env,
         policy,

@@ -8,6 +8,7 @@ from torchrl.envs import RewardSum
 from dockingrl.agents.config import TrainConfig
 from dockingrl.agents.reward_shaping import RewardShaping
 from dockingrl.agents.saving import pipeline_options
+from dockingrl.agents.world_options import curriculum_levels
 from dockingrl.env import DockingConfig
 from dockingrl.env.levels import level_config
 from dockingrl.transforms import (
@@ -23,16 +24,31 @@ from dockingrl.transforms.params import read_filter_params
 TRAINING_DRAWS = ("following_current_fraction", "lateral_current_fraction", "near_start_fraction")
 
 
-def env_kwargs(cfg: TrainConfig) -> dict:
+def env_kwargs(cfg: TrainConfig, level: str | None = None) -> dict:
     """The :func:`~dockingrl.make_env` options a training config implies (sensor-noise
-    scaling, the realism options of its ``train_level``, learned filter parameters, and
-    :func:`pipeline_options`)."""
+    scaling, the realism options of ``level``, by default its ``train_level``, learned filter
+    parameters, and :func:`pipeline_options`)."""
     config = DockingConfig().scale_usbl_noise(cfg.range_noise_scale, cfg.bearing_noise_scale)
-    kwargs: dict = {"config": level_config(cfg.train_level, config)}
+    kwargs: dict = {"config": level_config(level or cfg.train_level, config)}
     if cfg.filter_params:
         kwargs["filter_params"] = read_filter_params(cfg.filter_params)
     kwargs.update(pipeline_options(cfg.to_dict()))
     return kwargs
+
+
+def curriculum_stages(cfg: TrainConfig) -> list[tuple[str, int]]:
+    """The stages of the run's training world: ``(level, env steps at its end)`` for each
+    level of ``train_curriculum`` and then ``train_level``, equal shares of ``total_steps``
+    (one stage, ``train_level`` to the end, without a curriculum)."""
+    levels = [*curriculum_levels(cfg.train_curriculum), cfg.train_level]
+    return [(level, cfg.total_steps * (i + 1) // len(levels)) for i, level in enumerate(levels)]
+
+
+def stage_at(cfg: TrainConfig, frames: int) -> tuple[str, int]:
+    """The stage of :func:`curriculum_stages` that a run at ``frames`` env steps trains in:
+    the first that ends after ``frames`` (the last one at or past ``total_steps``)."""
+    stages = curriculum_stages(cfg)
+    return next((stage for stage in stages if frames < stage[1]), stages[-1])
 
 
 def training_draws(cfg: TrainConfig, config: DockingConfig) -> DockingConfig:

@@ -21,7 +21,7 @@ from dockingrl.training.collection import (
     training_env,
 )
 from dockingrl.training.logger import RunLogger, plot_run
-from dockingrl.training.options import env_kwargs
+from dockingrl.training.options import env_kwargs, stage_at
 from dockingrl.training.run_folder import code_version
 from dockingrl.training.selection import Selection
 from dockingrl.training.stopping import StopRequests, TrainingInterrupted
@@ -63,11 +63,10 @@ class Trainer(Checkpoints, Selection):
         return 0 < self.cfg.time_budget_s <= self.elapsed
 
     def run(self, logger: RunLogger) -> None:
-        """Train from ``frames`` to ``total_steps`` (or the time budget), logging each batch;
-        a stop request ends it after a checkpoint with :class:`TrainingInterrupted`."""
+        """Train from ``frames`` to ``total_steps`` (or the time budget), logging each batch,
+        one stage of ``train_curriculum`` after another; a stop request ends it after a
+        checkpoint with :class:`TrainingInterrupted`."""
         cfg = self.cfg
-        env = training_env(cfg, self.env_kwargs, self.frames)
-        collector = make_collector(cfg, env, self.agent.exploration_policy, self.frames)
         bar = None
         if self.progress:
             from tqdm.auto import tqdm
@@ -83,8 +82,25 @@ class Trainer(Checkpoints, Selection):
         stops = StopRequests()
         try:
             stops.install()
+            while self.frames < cfg.total_steps and not self.out_of_time:
+                level, until = stage_at(cfg, self.frames)
+                # the curriculum's world for its stage; the run's own without a curriculum
+                kwargs = self.env_kwargs if level == cfg.train_level else env_kwargs(cfg, level)
+                self._run_stage(logger, kwargs, until, started, stops, bar)
+        finally:
+            stops.restore()
+            if bar is not None:
+                bar.close()
+
+    def _run_stage(self, logger, kwargs, until, started, stops, bar) -> None:
+        """Collect and learn in the world of ``kwargs`` from ``frames`` to ``until`` env steps
+        (the batch that reaches it included), or to the time budget or a stop request."""
+        cfg = self.cfg
+        env = training_env(cfg, kwargs, self.frames)
+        collector = make_collector(cfg, env, self.agent.exploration_policy, self.frames, until)
+        try:
             for data in collector:
-                if self.frames >= cfg.total_steps:
+                if self.frames >= until:
                     break
                 # env steps: action_repeat per transition (fewer where an episode ended
                 # during the repeat; counted in full, as the batch stepped them)
@@ -121,13 +137,10 @@ class Trainer(Checkpoints, Selection):
                     logger.flush()
                 if stopping:
                     raise TrainingInterrupted(stops.signum, self.frames, self.run_dir)
-                if self.out_of_time:
+                if self.out_of_time or self.frames >= until:
                     break
         finally:
-            stops.restore()
             collector.shutdown()
-            if bar is not None:
-                bar.close()
 
     def finish(self, logger: RunLogger) -> dict:
         """End the run: the kept actor chosen (``keep_best``), ``policy.pt``, the final
