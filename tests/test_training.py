@@ -666,11 +666,62 @@ def test_train_curriculum_steps_the_training_world_through_its_levels(
     assert evaluated and all(world == options.env_kwargs(cfg)["config"] for world in evaluated)
     saved = json.loads((Path(result["run_dir"]) / "config.json").read_text())
     assert saved["train_curriculum"] == "L0,L3"
+    with pytest.raises(ValueError, match="train_curriculum 'L0,L3' shares out its total_st"):
+        train(None, resume=result["run_dir"], progress=False, overrides={"total_steps": 800})
     built.clear()
     train(tiny_config("sac", "compound", tmp_path / "flat", train_level="L5"), progress=False)
     assert [frames for frames, _ in built] == [0] and built[0][1].realistic
     with pytest.raises(ValueError, match="train_curriculum: unknown stress level 'L7'"):
         tiny_config("sac", "compound", tmp_path, train_curriculum="L1,L7")
+    with pytest.raises(ValueError, match="4 stages of total_steps // 4 = 100 env steps, short"):
+        tiny_config(
+            "sac",
+            "compound",
+            tmp_path,
+            train_curriculum="L1,L2,L3",
+            total_steps=400,
+            frames_per_batch=200,
+        )
+    with pytest.raises(ValueError, match="train_curriculum: not with time_budget_s"):
+        tiny_config("sac", "compound", tmp_path, train_curriculum="L1", time_budget_s=60.0)
+
+
+def test_a_new_stage_restarts_the_n_step_window(tmp_path, short_episodes, monkeypatch):
+    """With ``n_steps`` 3, the steps waiting for the next collection are dropped when a
+    curriculum stage builds its env (its episodes start afresh), and only then."""
+    from dockingrl.agents.off_policy import OffPolicyAgent
+    from dockingrl.training import trainer
+
+    tails = []
+    restart = OffPolicyAgent.restart_episodes
+    training_env = trainer.training_env
+
+    def spy(self):
+        tails.append(self.window.tail is not None)
+        restart(self)
+        assert self.window.tail is None
+
+    monkeypatch.setattr(OffPolicyAgent, "restart_episodes", spy)
+    cfg = tiny_config("sac", "compound", tmp_path, train_curriculum="L3", n_steps=3)
+    result = train(cfg, progress=False)
+    assert result["summary"]["frames"] == cfg.total_steps
+    # at the first stage nothing waits; at the second the last batch's two steps did
+    assert tails == [False, True] and training_env is trainer.training_env
+
+
+def test_off_policy_runs_anneal_their_rate_over_the_run(tmp_path, short_episodes):
+    """A SAC run with ``lr_schedule="linear"`` ends with every optimiser at the rate of its
+    last batch, ``lr (1 - progress)``: the training loop passes its progress to SAC."""
+    from dockingrl.training import Trainer
+
+    cfg = tiny_config("sac", "noise", tmp_path, lr=1e-3, lr_schedule="linear")
+    result = train(cfg, progress=False)
+    trainer = Trainer(cfg, Path(result["run_dir"]), progress=False)
+    assert trainer.load_checkpoint()
+    last_batch = cfg.total_steps - cfg.frames_per_batch
+    rates = [g["lr"] for o in trainer.agent.optimizers.values() for g in o.param_groups]
+    assert len(rates) == 2
+    assert rates == pytest.approx([1e-3 * (1 - last_batch / cfg.total_steps)] * 2)
 
 
 def test_compensate_latency_reaches_the_training_filter_and_the_saved_policy(

@@ -73,6 +73,10 @@ class Agent:
         """Turn ``data`` (``(num_envs, T)``) into updates; returns mean losses (``losses/...``)."""
         raise NotImplementedError(f"{type(self).__name__} has no learn")
 
+    def restart_episodes(self) -> None:
+        """The training env was built anew, its episodes start over: forget what waits for
+        their continuation (nothing, unless a subclass carries steps between collections)."""
+
     def _gradients(self, name: str, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Forward and backward of one loss (``name``: the ``_grad_<name>`` method); returns
         the detached logged values. With ``compile_update`` each of these runs through

@@ -24,7 +24,7 @@ from dockingrl.agents.option_fields import LR_SCHEDULES, documented, refuse
 from dockingrl.agents.ppo_options import ACTIVATIONS, PPOOptions
 from dockingrl.agents.reward_shaping import RewardShaping
 from dockingrl.agents.run_options import LOGGERS, RunOptions
-from dockingrl.agents.world_options import WorldOptions
+from dockingrl.agents.world_options import WorldOptions, curriculum_levels
 
 __all__ = [
     "ACTIVATIONS",
@@ -144,6 +144,28 @@ class TrainConfig(*TRAIN_GROUPS, in_order(TRAIN_FIELDS, TRAIN_GROUPS)):
         self._check_reward()
         self._check_network()
 
+    def collected_transitions(self) -> int:
+        """The transitions of one collected batch (all envs; each ``action_repeat`` env
+        steps)."""
+        raise NotImplementedError(f"{type(self).__name__} has no batch")
+
+    def _check_curriculum(self) -> None:
+        """Refuse a ``train_curriculum`` with a stage shorter than one collected batch (it
+        would be skipped) or with a time budget (the run could end before ``train_level``)."""
+        stages = len(curriculum_levels(self.train_curriculum)) + 1
+        if stages == 1:
+            return
+        batch = self.collected_transitions() * self.action_repeat
+        if self.total_steps // stages < batch:
+            refuse(
+                self,
+                "train_curriculum",
+                f"{stages} stages of total_steps // {stages} = {self.total_steps // stages} "
+                f"env steps, shorter than a collected batch of {batch}",
+            )
+        if self.time_budget_s > 0:
+            refuse(self, "train_curriculum", "not with time_budget_s (it shares out total_steps)")
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
@@ -165,6 +187,12 @@ class OffPolicyConfig(OffPolicyOptions, TrainConfig):
                 f"frames_per_batch // num_envs = {self.frames_per_batch // self.num_envs} "
                 f"(got {self.n_steps})"
             )
+        self._check_curriculum()
+
+    def collected_transitions(self) -> int:
+        """``frames_per_batch`` env steps, in whole transitions of every env (one at least)."""
+        per_env = self.frames_per_batch // self.action_repeat // self.num_envs
+        return max(self.num_envs, per_env * self.num_envs)
 
 
 @dataclass
@@ -229,6 +257,11 @@ class PPOConfig(PPOOptions, TrainConfig):
                 f"PPOConfig.minibatch_size: must be in [1, num_envs * steps_per_env = {frames}] "
                 f"(got {self.minibatch_size})"
             )
+        self._check_curriculum()
+
+    def collected_transitions(self) -> int:
+        """A rollout: ``steps_per_env`` transitions of every env."""
+        return self.num_envs * self.steps_per_env
 
 
 CONFIGS = {"sac": SACConfig, "td3": TD3Config, "ppo": PPOConfig}

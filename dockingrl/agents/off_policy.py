@@ -300,6 +300,11 @@ class OffPolicyAgent(Agent):
                 logs.setdefault(key, []).append(value)
         return {k: sum(v) / len(v) for k, v in logs.items()}
 
+    def restart_episodes(self) -> None:
+        """Drop the steps the n-step window holds: the new env's episodes do not continue
+        them."""
+        self.window.tail = None
+
     def _off_policy_update(self) -> dict[str, float]:
         """One update on a batch sampled from the replay buffer."""
         batch = self.replay_buffer.sample()

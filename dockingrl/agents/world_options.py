@@ -50,21 +50,22 @@ class WorldOptions:
     )
     train_level: str = documented(
         "stress-ladder level (L0-L5, docs/realism.md) whose realism options the run's world "
-        "takes: its training env and all its evaluations (L0: the paper's task; not in the "
-        "paper)",
+        "takes: its training env (after train_curriculum's stages) and all its evaluations "
+        "(L0: the paper's task; not in the paper)",
         default="L0",
     )
     train_curriculum: str = documented(
         "stress-ladder levels, comma-separated, that the training env passes through before "
         "train_level, each for an equal share of total_steps ('L1,L4' with train_level L5: "
-        "a third of the run at L1, a third at L4, the last third at L5); evaluations stay at "
-        "train_level ('': none; not in the paper)",
+        "a third of the run at L1, a third at L4, the last third at L5; a stage ends with the "
+        "batch that reaches its share); evaluations stay at train_level ('': none; not in "
+        "the paper)",
         default="",
     )
     compensate_latency: bool = documented(
         "the EKF of a filtered scenario compensates the USBL latency of the run's world "
-        "(train_level; docs/realism.md): a late fix is compared with the estimate of the "
-        "instant it describes (not in the paper)",
+        "(train_level, or a train_curriculum stage's level; docs/realism.md): a late fix is "
+        "compared with the estimate of the instant it describes (not in the paper)",
         default=False,
     )
     estimate_current: bool = documented(

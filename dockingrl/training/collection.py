@@ -50,16 +50,13 @@ def make_collector(
     of ``frames_per_batch``, random actions until ``start_steps``."""
     # the collector counts transitions: one per action_repeat env steps
     repeat = cfg.action_repeat
-    if cfg.algo == "ppo":
-        frames_per_batch = cfg.num_envs * cfg.steps_per_env
-        random_frames = 0
-    else:
-        frames_per_batch = max(
-            cfg.num_envs, cfg.frames_per_batch // repeat // cfg.num_envs * cfg.num_envs
-        )
+    frames_per_batch = cfg.collected_transitions()
+    random_frames = 0
+    if cfg.algo != "ppo":
         random_frames = -(-max(0, cfg.start_steps - frames) // repeat)
         random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
-    remaining = -(-((until or cfg.total_steps) - frames) // repeat)
+    until = cfg.total_steps if until is None else until
+    remaining = -(-(until - frames) // repeat)
     return Collector(
         env,
         policy,

@@ -47,9 +47,9 @@ def train(
             run, finished or not, to that total (not below its checkpoint). With ``keep_best``
             the final policy is chosen among the best periodic actors of the whole run; a new
             ``keep_candidates`` keeps that many from the checkpoint's on (a checkpoint holds
-            only those it was asked to keep). ``config.json`` records these three. PPO's
-            linear learning-rate schedule is tied to the total, so that run's total cannot
-            change.
+            only those it was asked to keep). ``config.json`` records these three. A linear
+            learning-rate schedule and a ``train_curriculum`` are tied to the total, so such a
+            run's total cannot change.
     """
     if resume is not None:
         run_dir = Path(resume)
@@ -73,6 +73,11 @@ def train(
             raise ValueError(
                 f"the run's lr_schedule {saved['lr_schedule']!r} anneals to its total_steps "
                 f"({saved['total_steps']}), which therefore cannot change"
+            )
+        if "total_steps" in overrides and saved.get("train_curriculum"):
+            raise ValueError(
+                f"the run's train_curriculum {saved['train_curriculum']!r} shares out its "
+                f"total_steps ({saved['total_steps']}), which therefore cannot change"
             )
         cfg = cls(**{**saved, **overrides})
         cfg.validate()

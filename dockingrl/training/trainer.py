@@ -78,7 +78,8 @@ class Trainer(Checkpoints, Selection):
                 desc=cfg.algo,
                 dynamic_ncols=True,
             )
-        started = time.perf_counter() - self.elapsed
+        #: the clock's zero: ``elapsed`` counts training, not the set-up of the envs
+        self.started = time.perf_counter() - self.elapsed
         stops = StopRequests()
         try:
             stops.install()
@@ -86,18 +87,22 @@ class Trainer(Checkpoints, Selection):
                 level, until = stage_at(cfg, self.frames)
                 # the curriculum's world for its stage; the run's own without a curriculum
                 kwargs = self.env_kwargs if level == cfg.train_level else env_kwargs(cfg, level)
-                self._run_stage(logger, kwargs, until, started, stops, bar)
+                self._run_stage(logger, kwargs, until, stops, bar)
         finally:
             stops.restore()
             if bar is not None:
                 bar.close()
 
-    def _run_stage(self, logger, kwargs, until, started, stops, bar) -> None:
+    def _run_stage(self, logger, kwargs, until, stops, bar) -> None:
         """Collect and learn in the world of ``kwargs`` from ``frames`` to ``until`` env steps
         (the batch that reaches it included), or to the time budget or a stop request."""
         cfg = self.cfg
+        set_up = time.perf_counter()
         env = training_env(cfg, kwargs, self.frames)
         collector = make_collector(cfg, env, self.agent.exploration_policy, self.frames, until)
+        self.agent.restart_episodes()
+        self.started += time.perf_counter() - set_up
+        started = self.started
         try:
             for data in collector:
                 if self.frames >= until:
