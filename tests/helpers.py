@@ -258,10 +258,7 @@ def check_committed_run(run_dir: Path, recipe: str, allowed: set[str], **fields)
     assert differing <= allowed, differing - allowed
     expected = load_recipe(recipe).make_config()
     summary = json.loads((run_dir / "summary.json").read_text())
-    if expected.algo == "ppo":  # a rollout of steps_per_env transitions per env
-        batch = expected.num_envs * expected.steps_per_env * expected.action_repeat
-    else:
-        batch = expected.frames_per_batch
+    batch = expected.collected_transitions() * expected.action_repeat
     assert summary["frames"] <= expected.total_steps + batch
     final = json.loads((run_dir / "eval.json").read_text())
     assert summary["success_rate"] == final["success_rate"]

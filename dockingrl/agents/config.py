@@ -72,6 +72,7 @@ class TrainConfig(*TRAIN_GROUPS, in_order(TRAIN_FIELDS, TRAIN_GROUPS)):
         self._check_run()
         self._check_reward()
         self._check_network()
+        self._check_curriculum()
 
     def collected_transitions(self) -> int:
         """The transitions of one collected batch (all envs; each ``action_repeat`` env
@@ -116,7 +117,6 @@ class OffPolicyConfig(OffPolicyOptions, TrainConfig):
                 f"frames_per_batch // num_envs = {self.frames_per_batch // self.num_envs} "
                 f"(got {self.n_steps})"
             )
-        self._check_curriculum()
 
     def collected_transitions(self) -> int:
         """``frames_per_batch`` env steps, in whole transitions of every env (one at least)."""
@@ -186,7 +186,6 @@ class PPOConfig(PPOOptions, TrainConfig):
                 f"PPOConfig.minibatch_size: must be in [1, num_envs * steps_per_env = {frames}] "
                 f"(got {self.minibatch_size})"
             )
-        self._check_curriculum()
 
     def collected_transitions(self) -> int:
         """A rollout: ``steps_per_env`` transitions of every env."""

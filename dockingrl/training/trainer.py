@@ -102,11 +102,8 @@ class Trainer(Checkpoints, Selection):
         collector = make_collector(cfg, env, self.agent.exploration_policy, self.frames, until)
         self.agent.restart_episodes()
         self.started += time.perf_counter() - set_up
-        started = self.started
         try:
             for data in collector:
-                if self.frames >= until:
-                    break
                 # env steps: action_repeat per transition (fewer where an episode ended
                 # during the repeat; counted in full, as the batch stepped them)
                 batch_frames = data.numel() * cfg.action_repeat
@@ -115,7 +112,7 @@ class Trainer(Checkpoints, Selection):
                 ended, ended_metrics = episode_metrics(data)
                 self.episodes += ended
                 metrics.update(ended_metrics)
-                self.elapsed = time.perf_counter() - started
+                self.elapsed = time.perf_counter() - self.started
                 metrics.update(
                     {
                         "train/episodes": self.episodes,
