@@ -58,6 +58,10 @@ def test_the_second_stage_fine_tunes_a_filtered_first_stage_at_l5(tmp_path, shor
     assert (tmp_path / "ft" / "policy.pt").is_file()
 
 
+def test_seeds_0_to_2_are_committed():
+    assert COMMITTED_SEEDS == [0, 1, 2]
+
+
 @pytest.mark.parametrize("seed", COMMITTED_SEEDS)
 def test_the_committed_stages_are_the_recipes(seed):
     first = RESULTS / f"td3_200k_filtered_s{seed}"
