@@ -18,7 +18,7 @@ RESULTS = Path(__file__).resolve().parents[1] / "results" / "stress" / "td3_robu
 #: run it started from
 RUN_FIELDS = {"out", "run_name", "logger", "recipe", "init_from"}
 #: the seeds whose two stages and ladders are in ``RESULTS``
-COMMITTED_SEEDS = sorted(int(p.name[-1]) for p in RESULTS.glob("td3_robust_ft_s*"))
+COMMITTED_SEEDS = sorted(int(p.name.rsplit("_s", 1)[1]) for p in RESULTS.glob("td3_robust_ft_s*"))
 
 
 def test_it_fine_tunes_td3_200k_gently_at_l5_with_the_gated_estimating_filter():
