@@ -424,19 +424,20 @@ def test_ppo_estimates_advantages_every_epoch_or_once_per_rollout(
 @pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
 def test_linear_lr_schedule_falls_with_progress(tmp_path, algo):
     """``lr_schedule="linear"`` sets every optimiser's rate (SAC's temperature's too) to
-    ``lr (1 - progress)`` before the updates of a batch; ``constant`` keeps ``lr``; an
-    unknown schedule is refused."""
+    ``lr (1 - progress)`` before the updates of a batch; ``late-linear`` keeps ``lr`` over the
+    first half, then ``2 lr (1 - progress)``; ``constant`` keeps ``lr``; an unknown schedule
+    is refused."""
     from dockingrl.agents import make_agent
     from dockingrl.scenarios import make_env
 
     env = make_env("noise", 4, seed=1)
     extra = {"ppo": {"epochs": 1}, "sac": {"learn_alpha": True}, "td3": {}}[algo]
     rates = {}
-    for schedule in ("constant", "linear"):
+    for schedule in ("constant", "linear", "late-linear"):
         cfg = tiny_config(algo, "noise", tmp_path, lr=1e-3, lr_schedule=schedule, **extra)
         agent = make_agent(cfg, 6, env.action_spec[0].clone(), 30.0)
         data = collect_once(env, agent.exploration_policy, 64)
-        for progress in (0.0, 0.75):
+        for progress in (0.0, 0.25, 0.75):
             losses = agent.learn(data, num_updates=1, progress=progress)
             groups = [g for o in agent.optimizers.values() for g in o.param_groups]
             assert len({g["lr"] for g in groups}) == 1
@@ -447,6 +448,8 @@ def test_linear_lr_schedule_falls_with_progress(tmp_path, algo):
     assert rates["constant", 0.0] == rates["constant", 0.75] == pytest.approx(1e-3)
     assert rates["linear", 0.0] == pytest.approx(1e-3)
     assert rates["linear", 0.75] == pytest.approx(2.5e-4)
+    assert rates["late-linear", 0.0] == rates["late-linear", 0.25] == pytest.approx(1e-3)
+    assert rates["late-linear", 0.75] == pytest.approx(5e-4)
     with pytest.raises(ValueError, match="lr_schedule"):
         tiny_config(algo, "noise", tmp_path, lr_schedule="cosine")
 

@@ -149,11 +149,15 @@ def scalar(value: torch.Tensor) -> float:
 
 def schedule_lr(optimizers, cfg: TrainConfig, progress: float) -> float:
     """Set every optimiser of ``optimizers`` to ``cfg.lr`` under ``cfg.lr_schedule`` at
-    ``progress`` (the fraction of ``total_steps`` done): the rate itself (``constant``) or
-    ``cfg.lr * (1 - progress)`` (``linear``, 0 at ``total_steps``). Returns the rate."""
-    lr = cfg.lr
+    ``progress`` (the fraction of ``total_steps`` done): the rate itself (``constant``),
+    ``cfg.lr * (1 - progress)`` (``linear``, 0 at ``total_steps``) or the rate itself up to
+    half of ``total_steps``, then ``cfg.lr * 2 (1 - progress)`` (``late-linear``, 0 at
+    ``total_steps``). Returns the rate."""
+    lr, done = cfg.lr, min(max(progress, 0.0), 1.0)
     if cfg.lr_schedule == "linear":
-        lr = cfg.lr * (1.0 - min(max(progress, 0.0), 1.0))
+        lr = cfg.lr * (1.0 - done)
+    elif cfg.lr_schedule == "late-linear":
+        lr = cfg.lr * min(1.0, 2.0 * (1.0 - done))
     for optim in optimizers:
         for group in optim.param_groups:
             group["lr"] = lr

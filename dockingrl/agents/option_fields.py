@@ -7,7 +7,7 @@ from dataclasses import field
 from typing import Any
 
 #: the learning-rate schedules of ``lr_schedule``
-LR_SCHEDULES = ("constant", "linear")
+LR_SCHEDULES = ("constant", "linear", "late-linear")
 
 
 def documented(text: str, **kwargs) -> Any:
@@ -18,8 +18,9 @@ def documented(text: str, **kwargs) -> Any:
 def lr_schedule_field() -> Any:
     """The ``lr_schedule`` field every algorithm has."""
     return documented(
-        "constant, or linear: the learning rate falls linearly to 0 at total_steps "
-        "(not in the paper)",
+        "constant; linear: the learning rate falls linearly to 0 at total_steps; late-linear: "
+        "it holds over the first half of total_steps, then falls linearly to 0 at "
+        "total_steps (not in the paper)",
         default="constant",
     )
 
