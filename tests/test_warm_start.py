@@ -82,6 +82,25 @@ def test_without_init_replay_the_buffer_starts_empty(tiny_runs, tmp_path, short_
     assert len(trainer.agent.replay_buffer) == 0
 
 
+def test_a_fine_tune_samples_its_own_batch_size_from_the_loaded_replay(
+    tiny_runs, tmp_path, short_episodes
+):
+    """A loaded replay buffer comes back with the batch size it was saved with; a fine-tune
+    that asks another one samples batches of its own."""
+    _, _, source = tiny_runs("sac", "compound")
+    own = 2 * json.loads((source / "config.json").read_text())["batch_size"] + 3
+    cfg = tiny_config(
+        "sac", "compound", tmp_path, init_from=str(source), init_replay=True, batch_size=own
+    )
+    trainer = Trainer(cfg, tmp_path / "fine", progress=False)
+    trainer.warm_start()
+    seen = []
+    update = trainer.agent._update
+    trainer.agent._update = lambda batch: seen.append(batch.shape[0]) or update(batch)
+    trainer.agent._off_policy_update()
+    assert seen == [own]
+
+
 def test_a_fine_tune_trains_and_resumes_from_its_own_checkpoint(
     tiny_runs, tmp_path, short_episodes
 ):

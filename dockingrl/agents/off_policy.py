@@ -307,7 +307,9 @@ class OffPolicyAgent(Agent):
 
     def _off_policy_update(self) -> dict[str, float]:
         """One update on a batch sampled from the replay buffer."""
-        batch = self.replay_buffer.sample()
+        # the size asked each time: a loaded buffer (a resumed or warm-started run's) takes
+        # back the batch size it was saved with, which a warm start may have changed
+        batch = self.replay_buffer.sample(self.config.batch_size)
         self.updates += 1
         return {k: scalar(v) for k, v in self._update(batch).items()}
 
