@@ -82,11 +82,11 @@ def test_without_init_replay_the_buffer_starts_empty(tiny_runs, tmp_path, short_
     assert len(trainer.agent.replay_buffer) == 0
 
 
-def test_a_fine_tune_samples_its_own_batch_size_from_the_loaded_replay(
+def test_a_fine_tune_samples_its_own_batch_size_from_the_sources_buffer(
     tiny_runs, tmp_path, short_episodes
 ):
     """A loaded replay buffer comes back with the batch size it was saved with; a fine-tune
-    that asks another one samples batches of its own."""
+    that asks another one samples batches of its own. The capacity stays the source's."""
     _, _, source = tiny_runs("sac", "compound")
     own = 2 * json.loads((source / "config.json").read_text())["batch_size"] + 3
     cfg = tiny_config(
@@ -99,6 +99,13 @@ def test_a_fine_tune_samples_its_own_batch_size_from_the_loaded_replay(
     trainer.agent._update = lambda batch: seen.append(batch.shape[0]) or update(batch)
     trainer.agent._off_policy_update()
     assert seen == [own]
+    # the buffer itself is the source's: another capacity is refused before anything loads
+    size = 2 * json.loads((source / "config.json").read_text())["buffer_size"]
+    cfg = tiny_config(
+        "sac", "compound", tmp_path, init_from=str(source), init_replay=True, buffer_size=size
+    )
+    with pytest.raises(ValueError, match=f"same buffer_size \\(got {size}\\)"):
+        Trainer(cfg, tmp_path / "bigger", progress=False).warm_start()
 
 
 def test_a_fine_tune_trains_and_resumes_from_its_own_checkpoint(

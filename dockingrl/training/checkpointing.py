@@ -201,6 +201,11 @@ class Checkpoints:
         state = read_state(path)
         if cfg.init_replay and (self.agent.replay_buffer is None or state["replay"] is None):
             raise ValueError(f"init_replay: {path} holds no replay buffer to start from")
+        if cfg.init_replay and config.get("buffer_size", cfg.buffer_size) != cfg.buffer_size:
+            raise ValueError(
+                f"init_replay keeps {source}'s replay buffer of {config['buffer_size']} "
+                f"transitions: give this run the same buffer_size (got {cfg.buffer_size})"
+            )
         # where this run averages its actor and the source run did not, the average starts at
         # the loaded actor; the learning rate, discount and other settings stay this run's
         self._load_agent(path, state, replay=cfg.init_replay, warm=True)
