@@ -88,7 +88,8 @@ def test_a_fine_tune_samples_its_own_batch_size_from_the_sources_buffer(
     """A loaded replay buffer comes back with the batch size it was saved with; a fine-tune
     that asks another one samples batches of its own. The capacity stays the source's."""
     _, _, source = tiny_runs("sac", "compound")
-    own = 2 * json.loads((source / "config.json").read_text())["batch_size"] + 3
+    saved = json.loads((source / "config.json").read_text())
+    own = 2 * saved["batch_size"] + 3
     cfg = tiny_config(
         "sac", "compound", tmp_path, init_from=str(source), init_replay=True, batch_size=own
     )
@@ -100,7 +101,7 @@ def test_a_fine_tune_samples_its_own_batch_size_from_the_sources_buffer(
     trainer.agent._off_policy_update()
     assert seen == [own]
     # the buffer itself is the source's: another capacity is refused before anything loads
-    size = 2 * json.loads((source / "config.json").read_text())["buffer_size"]
+    size = 2 * saved["buffer_size"]
     cfg = tiny_config(
         "sac", "compound", tmp_path, init_from=str(source), init_replay=True, buffer_size=size
     )
