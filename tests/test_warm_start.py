@@ -195,10 +195,20 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
     for options, says in [
         ({"hidden": (48, 48)}, rf"hidden: \[{hidden[0]}, {hidden[1]}\] there, \[48, 48\] here"),
         ({"critic_layer_norm": True}, "critic_layer_norm: False there, True here"),
+        ({"critic_dropout": 0.01}, "critic_dropout: 0.0 there, 0.01 here"),
     ]:
         other = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), **options)
         with pytest.raises(ValueError, match=f"its networks are not this run's \\({says}\\)"):
             Trainer(other, tmp_path / "w", progress=False).warm_start()
+    # a config.json from before critic_dropout existed trained without it
+    older = tmp_path / "older"
+    shutil.copytree(sac_run, older)
+    config = json.loads((older / "config.json").read_text())
+    del config["critic_dropout"]
+    (older / "config.json").write_text(json.dumps(config))
+    dropped = tiny_config("sac", "compound", tmp_path, init_from=str(older), critic_dropout=0.01)
+    with pytest.raises(ValueError, match=r"\(critic_dropout: 0.0 there, 0.01 here\)"):
+        Trainer(dropped, tmp_path / "w", progress=False).warm_start()
     # a checkpoint whose networks are not those its config.json says
     mislabelled = tmp_path / "mislabelled"
     shutil.copytree(sac_run, mislabelled)

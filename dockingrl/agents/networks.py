@@ -60,11 +60,13 @@ def mlp(
     activation: str = "relu",
     orthogonal_gain: float | None = None,
     layer_norm: bool = False,
+    dropout: float = 0.0,
 ) -> nn.Module:
     """Observation scaling then an MLP. ``orthogonal_gain`` (``None``: PyTorch's default
     init) gives orthogonal weights of gain sqrt(2) in the hidden layers and ``orthogonal_gain``
     on the output layer, with zero biases (stable-baselines3's init). ``layer_norm`` puts a
-    ``LayerNorm`` after each hidden linear layer, before its activation."""
+    ``LayerNorm`` after each hidden linear layer, before its activation; ``dropout`` (> 0) a
+    ``Dropout`` right after each hidden linear layer (before the ``LayerNorm``, as DroQ)."""
     norm = (
         {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": h} for h in hidden]}
         if layer_norm
@@ -75,6 +77,7 @@ def mlp(
         out_features=out_features,
         num_cells=list(hidden),
         activation_class=getattr(nn, ACTIVATIONS[activation]),
+        **({"dropout": dropout} if dropout > 0 else {}),
         **norm,
     )
     if orthogonal_gain is not None:
@@ -102,7 +105,7 @@ class _Critic(nn.Module):
     ``privileged_max_dist`` (asymmetric actor-critic) it is Q(o, s, a): the
     :func:`privileged_features` of the simulator's true state and current ``s`` sit between
     observation and action. With ``mirror`` (the observation's mirror signs) it is
-    :class:`MirrorSymmetric`."""
+    :class:`MirrorSymmetric`. ``dropout``: see :func:`mlp`."""
 
     def __init__(
         self,
@@ -113,6 +116,7 @@ class _Critic(nn.Module):
         layer_norm=False,
         privileged_max_dist: float | None = None,
         mirror: torch.Tensor | None = None,
+        dropout: float = 0.0,
     ) -> None:
         super().__init__()
         self.privileged_max_dist = privileged_max_dist
@@ -123,6 +127,7 @@ class _Critic(nn.Module):
             hidden,
             torch.cat((scale, torch.ones(extra + act_dim))),
             layer_norm=layer_norm,
+            dropout=dropout,
         )
         if mirror is not None and extra:
             raise ValueError("a privileged critic cannot be mirror-symmetric")
@@ -183,6 +188,7 @@ def make_critic(cfg: OffPolicyConfig, obs_dim: int, act_dim: int, scale, max_dis
             cfg.critic_layer_norm,
             privileged_max_dist=max_dist if privileged else None,
             mirror=mirror_observation_signs(cfg, obs_dim, "critic"),
+            dropout=cfg.critic_dropout,
         ),
         in_keys=["observation", *(PRIVILEGED_KEYS if privileged else ()), "action"],
     )

@@ -38,6 +38,12 @@ class OffPolicyOptions:
         "the paper)",
         default=False,
     )
+    critic_dropout: float = documented(
+        "dropout probability after each hidden linear layer of the critics, before the layer "
+        "norm (DroQ, Hiraoka et al. 2022: with critic_layer_norm, a cheap stand-in for a large "
+        "critic ensemble at high update ratios; 0: none; not in the paper)",
+        default=0.0,
+    )
     mirror_augment: bool = documented(
         "store each transition twice in the replay buffer: as collected and mirrored "
         "through the docking axis (y -> -y; the task is symmetric under it, see "
@@ -56,6 +62,11 @@ class OffPolicyOptions:
             non_negative=("start_steps",),
         )
         check_lr_schedule(self)
+        if not 0.0 <= self.critic_dropout < 1.0:
+            raise ValueError(
+                f"{type(self).__name__}.critic_dropout: must lie in [0, 1) "
+                f"(got {self.critic_dropout})"
+            )
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             raise ValueError(
                 f"{type(self).__name__}.buffer_size: must hold at least one batch "

@@ -15,11 +15,15 @@ from dockingrl.training.logger import drop_curves_after
 NETWORK_FIELDS = (
     "hidden",
     "critic_layer_norm",
+    "critic_dropout",
     "activation",
     "state_independent_scale",
     "observe_current",
     "observe_command",
 )
+
+#: network fields younger than some run folders: what a config.json without them trained with
+ADDED_NETWORK_FIELDS = {"critic_dropout": 0.0}
 
 
 def observation_width(config) -> int | None:
@@ -50,9 +54,9 @@ def network_differences(source: dict, cfg) -> list[str]:
             f"observations of {theirs} and {mine} numbers"
         )
     for name in NETWORK_FIELDS:
-        if name not in source or not hasattr(cfg, name):
+        if not hasattr(cfg, name) or (name not in source and name not in ADDED_NETWORK_FIELDS):
             continue
-        theirs, mine = source[name], getattr(cfg, name)
+        theirs, mine = source.get(name, ADDED_NETWORK_FIELDS.get(name)), getattr(cfg, name)
         if isinstance(mine, tuple):
             mine = list(mine)
         if theirs != mine:
