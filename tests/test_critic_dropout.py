@@ -24,7 +24,7 @@ def test_dropout_sits_after_each_hidden_linear_layer_and_the_update_trains(algo,
         for m in critic.modules()
         if isinstance(m, torch.nn.Linear | torch.nn.Dropout | torch.nn.LayerNorm)
     ]
-    assert layers == ["Linear", "Dropout", "LayerNorm"] * 2 + ["Linear"]
+    assert layers == ["Linear", "SparseDropout", "LayerNorm"] * 2 + ["Linear"]
     assert {m.p for m in critic.modules() if isinstance(m, torch.nn.Dropout)} == {0.25}
     # in training the critic's value is random; in evaluation it is not
     obs, act = torch.randn(64, 6), torch.rand(64, 2)

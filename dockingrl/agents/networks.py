@@ -17,6 +17,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhModule, ValueOperator
 
 from dockingrl.agents.config import ACTIVATIONS, OffPolicyConfig, TrainConfig
 from dockingrl.agents.distributions import BoundedTanhNormal
+from dockingrl.agents.dropout import SparseDropout
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
 from dockingrl.scenarios import MIRROR_PAIR
 
@@ -66,7 +67,8 @@ def mlp(
     init) gives orthogonal weights of gain sqrt(2) in the hidden layers and ``orthogonal_gain``
     on the output layer, with zero biases (stable-baselines3's init). ``layer_norm`` puts a
     ``LayerNorm`` after each hidden linear layer, before its activation; ``dropout`` (> 0) a
-    ``Dropout`` right after each hidden linear layer (before the ``LayerNorm``, as DroQ)."""
+    :class:`SparseDropout` right after each hidden linear layer (before the ``LayerNorm``, as
+    DroQ)."""
     norm = (
         {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": h} for h in hidden]}
         if layer_norm
@@ -80,6 +82,9 @@ def mlp(
         **({"dropout": dropout} if dropout > 0 else {}),
         **norm,
     )
+    for i, module in enumerate(net):
+        if isinstance(module, nn.Dropout):
+            net[i] = SparseDropout(dropout)
     if orthogonal_gain is not None:
         linears = [m for m in net.modules() if isinstance(m, nn.Linear)]
         for i, layer in enumerate(linears):
