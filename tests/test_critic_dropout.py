@@ -60,3 +60,30 @@ def test_without_dropout_the_critic_has_none_and_the_actor_never_does():
 def test_a_dropout_outside_zero_to_one_is_refused(value, says):
     with pytest.raises(ValueError, match=f"SACConfig.critic_dropout: {says}"):
         make_config("sac", "paper", critic_dropout=value).validate()
+
+
+@pytest.mark.parametrize(("p", "shape"), [(0.01, (64, 256)), (0.3, (8, 50)), (0.5, (1,))])
+def test_sparse_dropout_zeroes_each_entry_independently_with_probability_p(p, shape):
+    from dockingrl.agents.dropout import SparseDropout
+
+    torch.manual_seed(0)
+    dropout = SparseDropout(p)
+    x = torch.full(shape, 2.0)
+    masks = torch.stack([dropout(x) == 0 for _ in range(4000 if shape == (1,) else 200)])
+    kept = torch.stack([dropout(x) for _ in range(3)])
+    # the kept entries are scaled by 1 / (1 - p)
+    assert torch.allclose(kept[kept != 0], torch.tensor(2.0 / (1 - p)))
+    # the rate of dropped entries over all draws, within 5 binomial standard deviations of p
+    n = masks.numel()
+    assert abs(masks.float().mean().item() - p) < 5 * (p * (1 - p) / n) ** 0.5
+    # every position alike (the first and the last entry of the mask included) and neighbours
+    # uncorrelated
+    flat = masks.flatten(1).float()
+    for column in (flat[:, 0], flat[:, -1]):
+        assert abs(column.mean().item() - p) < 5 * (p * (1 - p) / len(column)) ** 0.5
+    if flat.shape[1] > 1:
+        pairs = torch.stack((flat[:, :-1].flatten(), flat[:, 1:].flatten()))
+        assert abs(torch.corrcoef(pairs)[0, 1].item()) < 5 / pairs.shape[1] ** 0.5
+    # evaluation mode and p = 0 leave the input as it is
+    assert torch.equal(dropout.eval()(x), x)
+    assert torch.equal(SparseDropout(0.0)(x), x)
