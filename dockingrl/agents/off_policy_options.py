@@ -11,6 +11,7 @@ from dockingrl.agents.option_fields import (
     check_ranges,
     documented,
     lr_schedule_field,
+    refuse,
 )
 
 
@@ -63,10 +64,7 @@ class OffPolicyOptions:
         )
         check_lr_schedule(self)
         if not 0.0 <= self.critic_dropout < 1.0:
-            raise ValueError(
-                f"{type(self).__name__}.critic_dropout: must lie in [0, 1) "
-                f"(got {self.critic_dropout})"
-            )
+            refuse(self, "critic_dropout", "must lie in [0, 1)")
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             raise ValueError(
                 f"{type(self).__name__}.buffer_size: must hold at least one batch "
