@@ -20,8 +20,8 @@ class SparseDropout(nn.Dropout):
     independent geometric gaps, ``G = floor(log U / log(1 - p)) + 1`` with ``U`` uniform: one
     mask of ``n`` entries draws ``n p + 12 sd + 12`` of them instead of ``n`` uniforms. At
     DroQ's ``p = 0.01`` and the critics' 256 x 256 activations that is about 900 numbers
-    instead of 65,536 (a CPU draws about 400 million a second on one thread), which made the
-    dropout of a SAC update cost more than its matrix products. The mask is the same in law as
+    instead of 65,536: a SAC update with it runs at 57.0 a second eager against 49.7 with
+    ``nn.Dropout`` (``bench/dropout_speed.py``). The mask is the same in law as
     ``nn.Dropout``'s, not in its draws; it works under ``torch.vmap`` (randomness
     ``"different"``) and ``torch.compile`` (its shapes depend on ``n`` and ``p`` alone)."""
 
