@@ -182,7 +182,7 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
         trainer.warm_start()
     empty = tmp_path / "no_checkpoint"
     empty.mkdir()
-    (empty / "config.json").write_text(json.dumps({"algo": "sac"}))
+    shutil.copy(sac_run / "config.json", empty / "config.json")
     (empty / "summary.json").write_text("{}")
     trainer = Trainer(
         tiny_config("sac", "compound", tmp_path, init_from=str(empty)),
@@ -200,15 +200,19 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
         other = tiny_config("sac", "compound", tmp_path, init_from=str(sac_run), **options)
         with pytest.raises(ValueError, match=f"its networks are not this run's \\({says}\\)"):
             Trainer(other, tmp_path / "w", progress=False).warm_start()
-    # a config.json from before critic_dropout existed trained without it
-    older = tmp_path / "older"
-    shutil.copytree(sac_run, older)
-    config = json.loads((older / "config.json").read_text())
-    del config["critic_dropout"]
-    (older / "config.json").write_text(json.dumps(config))
-    dropped = tiny_config("sac", "compound", tmp_path, init_from=str(older), critic_dropout=0.01)
-    with pytest.raises(ValueError, match=r"\(critic_dropout: 0.0 there, 0.01 here\)"):
-        Trainer(dropped, tmp_path / "w", progress=False).warm_start()
+    # a config.json older than a network field trained with the field's default
+    for name, options, says in [
+        ("critic_dropout", {"critic_dropout": 0.01}, "critic_dropout: 0.0 there, 0.01 here"),
+        ("critic_layer_norm", {"critic_layer_norm": True}, "critic_layer_norm: False there"),
+    ]:
+        older = tmp_path / f"older_{name}"
+        shutil.copytree(sac_run, older)
+        config = json.loads((older / "config.json").read_text())
+        del config[name]
+        (older / "config.json").write_text(json.dumps(config))
+        dropped = tiny_config("sac", "compound", tmp_path, init_from=str(older), **options)
+        with pytest.raises(ValueError, match=f"\\({says}"):
+            Trainer(dropped, tmp_path / "w", progress=False).warm_start()
     # a checkpoint whose networks are not those its config.json says
     mislabelled = tmp_path / "mislabelled"
     shutil.copytree(sac_run, mislabelled)

@@ -3,6 +3,7 @@ newest, and the restore of a resumed run."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -22,8 +23,14 @@ NETWORK_FIELDS = (
     "observe_command",
 )
 
-#: network fields younger than some run folders: what a config.json without them trained with
-ADDED_NETWORK_FIELDS = {"critic_dropout": 0.0}
+
+def field_default(cfg, name: str):
+    """The default of the dataclass field ``name`` of the config ``cfg``: what a run folder
+    whose config.json is older than the field trained with (fields are added off by default)."""
+    field = next(f for f in dataclasses.fields(cfg) if f.name == name)
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return field.default
 
 
 def observation_width(config) -> int | None:
@@ -44,8 +51,9 @@ def observation_width(config) -> int | None:
 
 def network_differences(source: dict, cfg) -> list[str]:
     """The :data:`NETWORK_FIELDS` in which the config.json ``source`` and the config ``cfg``
-    differ, each as ``"name: <source's> there, <cfg's> here"``, and the scenario where the
-    two policies read observations of different widths."""
+    differ, each as ``"name: <source's> there, <cfg's> here"`` (a field the config.json lacks
+    read as its default), and the scenario where the two policies read observations of
+    different widths."""
     differ = []
     theirs, mine = observation_width(source), observation_width(cfg)
     if None not in (theirs, mine) and theirs != mine and source["scenario"] != cfg.scenario:
@@ -54,14 +62,18 @@ def network_differences(source: dict, cfg) -> list[str]:
             f"observations of {theirs} and {mine} numbers"
         )
     for name in NETWORK_FIELDS:
-        if not hasattr(cfg, name) or (name not in source and name not in ADDED_NETWORK_FIELDS):
+        if not hasattr(cfg, name):
             continue
-        theirs, mine = source.get(name, ADDED_NETWORK_FIELDS.get(name)), getattr(cfg, name)
-        if isinstance(mine, tuple):
-            mine = list(mine)
+        theirs = source[name] if name in source else field_default(cfg, name)
+        theirs, mine = _listed(theirs), _listed(getattr(cfg, name))
         if theirs != mine:
             differ.append(f"{name}: {theirs} there, {mine} here")
     return differ
+
+
+def _listed(value):
+    """``value`` with a tuple as a list, as a config.json reads it back."""
+    return list(value) if isinstance(value, tuple) else value
 
 
 def first_stage_hint(recipe: str | None) -> str:
