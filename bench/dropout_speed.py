@@ -16,6 +16,7 @@ import time
 
 import torch
 from torch import nn
+from torch._dynamo.utils import counters
 
 from dockingrl.agents import make_agent, networks
 from dockingrl.agents.config import make_config
@@ -58,6 +59,9 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
+    # three compiled agents, each with its graphs of the shared loss code (grad mode on and
+    # off...): past dynamo's default of 8 per code object it would run the rest eager
+    torch._dynamo.config.recompile_limit = 64
     data = make_env("compound", 4, seed=0).rollout(300, break_when_any_done=False)
     variants = {
         f"{label}, {'compiled' if comp else 'eager'}": build(p, dense, comp, data)
@@ -69,12 +73,17 @@ def main() -> None:
         )
     }
     rates: dict[str, list[float]] = {name: [] for name in variants}
+    compiled = dict(counters["stats"])
     for _ in range(args.rounds):
         for name, agent in variants.items():
             start = time.perf_counter()
             agent.learn(data[:, :1], num_updates=args.updates)
             rates[name].append(args.updates / (time.perf_counter() - start))
     print(f"{describe_machine()}; {args.threads} thread(s); dropout p = {args.p}")
+    # the compiled agents share their loss code: each keeps its own graphs in dynamo's cache
+    # (raised limit above); a graph compiled while timing would make the figures compile time
+    again = counters["stats"]["unique_graphs"] - compiled.get("unique_graphs", 0)
+    print(f"  graphs compiled while timing: {again}")
     for name, values in rates.items():
         print(f"  {name:28s} {statistics.median(values):6.1f} updates/s")
 
