@@ -3,7 +3,6 @@ newest, and the restore of a resumed run."""
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 from pathlib import Path
 
@@ -22,15 +21,6 @@ NETWORK_FIELDS = (
     "observe_current",
     "observe_command",
 )
-
-
-def field_default(cfg, name: str):
-    """The default of the dataclass field ``name`` of the config ``cfg``: what a run folder
-    whose config.json is older than the field trained with (fields are added off by default)."""
-    field = next(f for f in dataclasses.fields(cfg) if f.name == name)
-    if field.default_factory is not dataclasses.MISSING:
-        return field.default_factory()
-    return field.default
 
 
 def observation_width(config) -> int | None:
@@ -61,11 +51,13 @@ def network_differences(source: dict, cfg) -> list[str]:
             f"scenario: {source['scenario']} there, {cfg.scenario} here, "
             f"observations of {theirs} and {mine} numbers"
         )
+    # a field the config.json lacks (added to dockingrl since, off by default) counts as the
+    # config class's default, as a grid's saved configs do (grid.folders.config_mismatch)
+    defaults = type(cfg)().to_dict()
     for name in NETWORK_FIELDS:
-        if not hasattr(cfg, name):
+        if name not in defaults:
             continue
-        theirs = source[name] if name in source else field_default(cfg, name)
-        theirs, mine = _listed(theirs), _listed(getattr(cfg, name))
+        theirs, mine = _listed(source.get(name, defaults[name])), _listed(getattr(cfg, name))
         if theirs != mine:
             differ.append(f"{name}: {theirs} there, {mine} here")
     return differ
