@@ -42,11 +42,34 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
         os.fchmod(fd, 0o666 & ~_umask())
         os.close(fd)
         write(Path(tmp))
+        fsync_path(tmp)  # the bytes on disk before the name points at them (a power cut)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    fsync_path(path.parent)
     return path
+
+
+def sync_tree(folder: str | Path) -> None:
+    """Flush every file under ``folder``, and the folders, to disk: what a folder written and
+    then renamed into place needs before anything points at it."""
+    folder = Path(folder)
+    for path in sorted(folder.rglob("*"), reverse=True):
+        fsync_path(path)
+    fsync_path(folder)
+
+
+def fsync_path(path: str | Path) -> None:
+    """``fsync`` a file or a folder; a file system that cannot sync a folder is let be."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError:
+        if not os.path.isdir(path):
+            raise
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:
@@ -254,6 +277,28 @@ def require_keys(path: str | Path, payload: Mapping, what: str, keys: Iterable[s
     missing = [k for k in keys if k not in payload]
     if missing:
         raise ArtifactError(f"{path}: {what} without {', '.join(missing)}")
+
+
+def require_finite(path: str | Path, name: str, tree: Any) -> None:
+    """Raise :class:`ArtifactError` where the tensors of ``tree`` (a tensor, or dicts and lists
+    of them) hold a NaN or an infinity: a whole file of dockingrl's can still hold the
+    numbers of a run that diverged, or edited ones."""
+    bad = [
+        key for key, t in _tensors(name, tree) if t.is_floating_point() and not t.isfinite().all()
+    ]
+    if bad:
+        raise ArtifactError(f"{path}: non-finite numbers in {', '.join(bad[:3])}")
+
+
+def _tensors(key: str, tree: Any):
+    if isinstance(tree, torch.Tensor):
+        yield key, tree
+    elif isinstance(tree, Mapping):
+        for k, v in tree.items():
+            yield from _tensors(f"{key}.{k}", v)
+    elif isinstance(tree, (list, tuple)):
+        for i, v in enumerate(tree):
+            yield from _tensors(f"{key}[{i}]", v)
 
 
 # -- folders written by other libraries --------------------------------------------------------

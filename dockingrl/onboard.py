@@ -326,6 +326,8 @@ class OnboardPolicy(nn.Module):
             )
         mean, cov, command, age, *history = self._state
         command, *state = self.step(z, current, mean, cov, command, age, sensor_age, *history)
+        if not bool(command.isfinite().all()):  # never a NaN to the thrusters; state kept
+            raise RuntimeError(f"the policy computed a non-finite command {command.tolist()}")
         self._state = (state[0], state[1], command, *state[2:])
         return command[0] if single else command
 

@@ -161,6 +161,7 @@ def fake_run(
         json.dumps(
             {
                 "frames": 500_000,
+                "success_rate": success,
                 "train_wall_clock_s": 3600.0,
                 "machine": "m",
                 "code": {"commit": "abc", "dirty": False},

@@ -165,8 +165,12 @@ def test_td0_target_discounts_by_gamma_to_the_steps_summed():
 def test_n_steps_must_fit_one_collection():
     with pytest.raises(ValueError, match="n_steps"):
         make_config("sac", "paper", n_steps=0)
-    with pytest.raises(ValueError, match="steps per env of one collection"):
+    with pytest.raises(ValueError, match="transitions per env of one collection"):
         make_config("td3", "paper", n_steps=11, num_envs=100, frames_per_batch=1000)
+    # with action repeat, a collection holds frames_per_batch // action_repeat env steps
+    with pytest.raises(ValueError, match=r"action_repeat // num_envs = 15 \(got 20\)"):
+        make_config("sac", "paper", n_steps=20, num_envs=16, action_repeat=4)
+    make_config("sac", "paper", n_steps=15, num_envs=16, action_repeat=4)
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3"])

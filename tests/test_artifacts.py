@@ -243,6 +243,36 @@ BAD_POLICIES = {
         "older format dockingrl.policy/1; convert it once with: dockingrl upgrade",
     ),
     "no hash": (lambda p, payload: torch.save(payload, p), "no content hash"),
+    # whole files of dockingrl's whose numbers cannot act
+    "NaN weights": (
+        lambda p, payload: save_artifact(
+            p,
+            {
+                **payload,
+                "state_dict": {
+                    k: torch.full_like(v, float("nan")) if i == 0 else v
+                    for i, (k, v) in enumerate(payload["state_dict"].items())
+                },
+            },
+        ),
+        "non-finite numbers in state_dict.",
+    ),
+    "NaN action bound": (
+        lambda p, payload: save_artifact(p, {**payload, "action_low": [float("nan"), -0.1]}),
+        "action_low and action_high must be two numbers each, low < high",
+    ),
+    "empty action range": (
+        lambda p, payload: save_artifact(p, {**payload, "action_high": payload["action_low"]}),
+        "low < high",
+    ),
+    "zero max_dist": (
+        lambda p, payload: save_artifact(p, {**payload, "max_dist": 0.0}),
+        "max_dist must be a finite number > 0 (got 0.0)",
+    ),
+    "no layout": (
+        lambda p, payload: save_artifact(p, {**payload, "observation_layout": None}),
+        "observation_layout must be a dict",
+    ),
 }
 
 
@@ -334,6 +364,13 @@ def test_a_filter_file_round_trips(tmp_path):
         path.write_bytes(bad.encode() if isinstance(bad, str) else bad)
         with pytest.raises(ArtifactError, match=expected):
             EKFTransform().load_filter_params(path)
+    # a whole file whose R holds a NaN would turn every filtered observation into NaN
+    payload = read_filter_params(tmp_path / "f.pt")
+    first = next(iter(payload["measurement_noise"]))
+    noise = {**payload["measurement_noise"], first: torch.tensor(float("nan"))}
+    save_artifact(tmp_path / "nan.pt", {**payload, "measurement_noise": noise})
+    with pytest.raises(ArtifactError, match=f"non-finite numbers in measurement_noise.{first}"):
+        EKFTransform().load_filter_params(tmp_path / "nan.pt")
 
 
 # -- checkpoints -----------------------------------------------------------------------------
@@ -350,6 +387,33 @@ def checkpointed(tmp_path):
     t.frames, t.episodes = 16, 3
     path = t.save_checkpoint()
     return t, path
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="names an fd through /proc")
+def test_a_checkpoint_is_on_disk_before_latest_json_names_it(tmp_path, monkeypatch):
+    """After a power cut the checkpoint that ``latest.json`` names must hold its bytes: every
+    file of it is flushed before ``latest.json`` is replaced (and the older ones dropped)."""
+    t = trainer(tmp_path)
+    t.agent.replay_buffer.extend(TensorDict({"observation": torch.randn(10, 6)}, [10]))
+    events = []
+    fsync, replace = os.fsync, os.replace
+
+    def record_fsync(fd):
+        events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        return fsync(fd)
+
+    def record_replace(src, dst):
+        events.append(("replace", str(dst)))
+        return replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", record_fsync)
+    monkeypatch.setattr(os, "replace", record_replace)
+    path = t.save_checkpoint()
+    latest = events.index(("replace", str(path.parent / "latest.json")))
+    synced = {name.replace(".tmp/", "/") for kind, name in events[:latest] if kind == "fsync"}
+    files = {str(p) for p in path.rglob("*") if p.is_file()}
+    assert files and files <= synced
+    assert ("fsync", str(path.parent)) in events[latest:]  # the rename into latest.json
 
 
 def test_a_checkpoint_round_trips_with_its_replay_buffer(tmp_path):

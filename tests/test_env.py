@@ -254,6 +254,21 @@ def test_bad_constructor_arguments():
         DockingEnv(1, config={"dt": 0.1})
 
 
+def test_pinned_starts_of_a_wrong_shape_are_one_line_errors():
+    env = DockingEnv(4, seed=0)
+    for value, shape in [(torch.zeros(2), "(2,)"), (torch.zeros(3, 3), "(3, 3)")]:
+        with pytest.raises(ValueError) as err:
+            env.set_initial_state(pose=value)
+        assert str(err.value) == f"pose must be (4, 3) or (3,), got {shape}"
+    with pytest.raises(ValueError, match="ocean_current must be finite"):
+        env.set_initial_state(ocean_current=torch.tensor([float("nan"), 0.0]))
+    # one start for every env; a current beyond the training range may be pinned
+    env.set_initial_state(pose=torch.tensor([20.0, 0.0, 0.1]), ocean_current=torch.tensor([0.5, 0]))
+    td = env.reset()
+    assert torch.equal(env._current, torch.tensor([[0.5, 0.0]] * 4, dtype=env.dtype))
+    assert td["observation"].shape == (4, 6)
+
+
 def test_gymnasium_registration_and_checker():
     env = gymnasium.make("dockingrl/Docking-v0", fast=False)
     check_env(env.unwrapped)

@@ -226,12 +226,13 @@ def test_the_table_of_a_grid_run_in_part_is_the_whole_grids(tmp_path, capsys):
 
     path = write_grid(tmp_path)
     grid = load_grid(path)
-    fake_run(grid.collect, "ppo", "ppo", "noise", 0, 50.0)  # grid.trials[0]
+    configs = [t.config(grid.out, 1).to_dict() for t in grid.trials]
+    fake_run(grid.collect, "ppo", "ppo", "noise", 0, 50.0, config=configs[0])
     table = tmp_path / "table"
     assert main(["grid", str(path), "--only", "*__s0", "--table", str(table)]) == 0
     assert "table not written: 1 trials" in capsys.readouterr().out
     assert not table.exists()  # a table of seed 0 alone would pass for the grid's
-    fake_run(grid.collect, "ppo", "ppo", "noise", 1, 70.0)
+    fake_run(grid.collect, "ppo", "ppo", "noise", 1, 70.0, config=configs[1])
     assert main(["grid", str(path), "--only", "*__s0", "--table", str(table)]) == 0
     cells = json.loads((table / "table.json").read_text())["cells"]
     assert [(c["seeds"], c["success_mean"]) for c in cells] == [([0, 1], 60.0)]
@@ -241,6 +242,43 @@ def test_the_table_of_a_grid_run_in_part_is_the_whole_grids(tmp_path, capsys):
     argv = ["grid", str(path), "--table", str(table), "--prune-policies"]
     assert main(argv) == 0
     assert [p.exists() for p in seeds] == [False, True]  # the best seed's stays
+
+
+def test_a_finished_trial_of_another_config_is_neither_counted_nor_rerun(tmp_path, capsys):
+    from dockingrl.cli import main
+    from dockingrl.grid import finished_summary, finished_trial
+
+    path = write_grid(tmp_path)
+    grid = load_grid(path)
+    configs = [t.config(grid.out, 1).to_dict() for t in grid.trials]
+    fake_run(grid.collect, "ppo", "ppo", "noise", 0, 50.0, config=configs[0])
+    # the grid's recipe changed since seed 1 finished: its result is of another config
+    fake_run(grid.out, "ppo", "ppo", "noise", 1, 70.0, config={**configs[1], "lr": 0.01})
+    assert finished_summary(grid, grid.trials[0])["machine"] == "m"
+    assert finished_summary(grid, grid.trials[1]) is None
+    summary, refusal = finished_trial(grid, grid.trials[1])
+    assert summary is not None and "holds a run of another config (lr differ)" in refusal
+    assert main(["grid", str(path), "--list"]) == 0
+    listed = capsys.readouterr().out.splitlines()
+    assert "finished, 50.0 %" in listed[0] and "finished with another config" in listed[1]
+    stale = grid.run_dir(grid.trials[1]) / "summary.json"
+    before = stale.read_bytes()
+    table = tmp_path / "table"
+    # nothing to run: the stale trial fails without starting Ray, and no table is written
+    assert main(["grid", str(path), "--table", str(table)]) == 1
+    assert "1 of 2 trials not finished" in capsys.readouterr().out
+    assert stale.read_bytes() == before and not table.exists()
+
+
+def test_a_stopping_grid_signals_only_a_process_that_holds_the_lock(tmp_path):
+    from dockingrl.training import RunLock
+
+    assert RunLock.holder(tmp_path) is None  # no lock file
+    with RunLock(tmp_path):
+        assert RunLock.holder(tmp_path) == os.getpid()
+    # the lock file keeps the PID of a process that has ended, a number another may take
+    assert (tmp_path / "run.lock").read_text().strip() == str(os.getpid())
+    assert RunLock.holder(tmp_path) is None
 
 
 def test_more_trials_than_cores_share_them():

@@ -138,6 +138,18 @@ def test_onboard_policy_refuses_bad_readings():
         OnboardPolicy(random_actor("sac", "noise"), "noise", filter_params="x.pt")
 
 
+def test_onboard_policy_never_returns_a_non_finite_command():
+    policy = OnboardPolicy(random_actor("sac", "compound"), "compound")
+    z, current = torch.tensor([20.0, 0.1, 0, 0.5, 0, 0]), torch.zeros(2)
+    policy.act(z, current)
+    state = policy._state
+    with torch.no_grad():  # weights gone bad after loading (a file's are checked on load)
+        next(policy.step.actor.parameters()).fill_(float("nan"))
+    with pytest.raises(RuntimeError, match="non-finite command"):
+        policy.act(z, current)
+    assert policy._state is state  # the filter's state is not advanced by a refused step
+
+
 def test_exported_onboard_program_runs_with_torch_alone(tmp_path):
     from dockingrl.onboard import export_onboard
 

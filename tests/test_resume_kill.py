@@ -239,3 +239,16 @@ def test_a_backend_that_cannot_be_rewritten_is_sent_each_row_once(tmp_path):
     with (tmp_path / "curves.csv").open() as f:
         logged = [(int(r["step"]), r["key"], float(r["value"])) for r in csv.DictReader(f)]
     assert sent == logged
+
+
+@pytest.mark.parametrize("tail", ["4", "300,eval/success_rate,4", "\0\0\0\0", "\n"])
+def test_a_curves_file_cut_short_by_a_kill_resumes_without_its_torn_line(tmp_path, tail):
+    """The one file appended in place: a write cut short leaves a partial last line (or
+    zeros, after a crash), which the resumed run drops with the steps it trains again."""
+    from dockingrl.training.logger import drop_curves_after
+
+    whole = "step,key,value\n100,a,1.0\n200,a,3.0\n300,a,5.0\n"
+    (tmp_path / "curves.csv").write_text(whole + tail)
+    assert read_curves(tmp_path) == {"a": [(100, 1.0), (200, 3.0), (300, 5.0)]}
+    drop_curves_after(tmp_path, 200, 1000)
+    assert (tmp_path / "curves.csv").read_text() == "step,key,value\n100,a,1.0\n200,a,3.0\n"

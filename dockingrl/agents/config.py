@@ -111,10 +111,11 @@ class OffPolicyConfig(OffPolicyOptions, TrainConfig):
         name = type(self).__name__
         if self.frames_per_batch < self.num_envs:
             raise ValueError(f"{name}.frames_per_batch: must be >= num_envs")
-        if self.n_steps > self.frames_per_batch // self.num_envs:
+        per_env = self.collected_transitions() // self.num_envs
+        if self.n_steps > per_env:
             raise ValueError(
-                f"{name}.n_steps: at most the steps per env of one collection, "
-                f"frames_per_batch // num_envs = {self.frames_per_batch // self.num_envs} "
+                f"{name}.n_steps: at most the transitions per env of one collection, "
+                f"frames_per_batch // action_repeat // num_envs = {per_env} "
                 f"(got {self.n_steps})"
             )
 

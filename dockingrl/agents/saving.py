@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import fields
+from math import inf
 from pathlib import Path
 
 import torch
@@ -14,6 +15,7 @@ from dockingrl.io import (
     first_line,
     read_artifact,
     read_to_upgrade,
+    require_finite,
     require_keys,
     save_artifact,
 )
@@ -122,6 +124,11 @@ def read_policy(path: str | Path) -> dict:
     payload = read_artifact(path, WHAT, FORMAT, OLD_FORMATS)
     require_keys(path, payload, WHAT, KEYS)
     _check_payload(path, payload, CONFIGS)
+    layout = payload["observation_layout"]
+    if not isinstance(layout, dict) or not {"keys", "obs_dim", "action_repeat"} <= set(layout):
+        raise ArtifactError(
+            f"{path}: observation_layout must be a dict of keys, obs_dim and action_repeat"
+        )
     return payload
 
 
@@ -139,6 +146,24 @@ def _check_payload(path, payload: dict, configs: Mapping) -> None:
         raise ArtifactError(
             f"{path}: config fields unknown to dockingrl's {algo}: {', '.join(extra)}"
         )
+    require_finite(path, "state_dict", payload["state_dict"])
+    low, high, max_dist = payload["action_low"], payload["action_high"], payload["max_dist"]
+    try:
+        low, high = torch.tensor(low, dtype=torch.float64), torch.tensor(high, dtype=torch.float64)
+        bounds = low.shape == high.shape == (2,) and bool((low < high).all())
+    except (TypeError, ValueError, RuntimeError):
+        bounds = False
+    if not bounds:  # NaN fails low < high
+        raise ArtifactError(
+            f"{path}: action_low and action_high must be two numbers each, low < high "
+            f"(got {payload['action_low']!r}, {payload['action_high']!r})"
+        )
+    if (
+        isinstance(max_dist, bool)
+        or not isinstance(max_dist, (int, float))
+        or not 0 < max_dist < inf
+    ):
+        raise ArtifactError(f"{path}: max_dist must be a finite number > 0 (got {max_dist!r})")
 
 
 def load_policy(path: str | Path, device: torch.device | str = "cpu"):

@@ -21,11 +21,12 @@ def cmd_grid(args: argparse.Namespace) -> int:
     whole = load_grid(args.grid, out=args.out, collect=args.collect)
     grid = select_trials(whole, args.only, args.threads)
     if args.list:
-        from dockingrl.grid import finished_summary
+        from dockingrl.grid import finished_trial
 
         for trial in grid.trials:
-            s = finished_summary(grid, trial)
+            s, refusal = finished_trial(grid, trial)
             state = f"finished, {s['success_rate']:.1f} %" if s else "not finished"
+            state = f"finished with another config: {refusal}" if refusal else state
             print(f"{trial.name:<34} {state}")
         return 0
     states = run_grid(

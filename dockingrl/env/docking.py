@@ -213,8 +213,12 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
         """Pin what the following resets start from, instead of sampling it (Sec. 4.1).
 
         Args:
-            pose: ``(num_envs, 3)`` ``(x, y, alpha)`` start poses, or ``None`` to sample again.
-            ocean_current: ``(num_envs, 2)`` currents, or ``None`` to sample again.
+            pose: ``(num_envs, 3)`` ``(x, y, alpha)`` start poses (``(3,)``: one for every env),
+                or ``None`` to sample again.
+            ocean_current: ``(num_envs, 2)`` currents, or ``None`` to sample again. Any
+                finite current, also one outside ``ocean_current_range`` (to test a policy
+                beyond what it trained on; the Gymnasium env, whose users pin a current per
+                reset, keeps to the range).
 
         Used for the success map over currents (Figure 9) and for chosen trajectories
         (Figure 10). The random draws still happen, so the env's random stream is the same

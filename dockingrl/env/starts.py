@@ -79,9 +79,9 @@ def pinned(value, size: int, name: str, n: int, device, dtype) -> torch.Tensor |
     if value is None:
         return None
     value = torch.as_tensor(value, dtype=dtype, device=device)
-    value = value.expand(n, size) if value.dim() == 1 else value
-    if value.shape != (n, size):
-        raise ValueError(f"{name} must be ({n}, {size}), got {tuple(value.shape)}")
+    if value.shape not in ((size,), (n, size)):
+        raise ValueError(f"{name} must be ({n}, {size}) or ({size},), got {tuple(value.shape)}")
+    value = value.expand(n, size)
     if not bool(torch.isfinite(value).all()):
         raise ValueError(f"{name} must be finite")
     return value.clone()

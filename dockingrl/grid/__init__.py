@@ -20,7 +20,13 @@ the grid while it runs and :mod:`~dockingrl.grid.driver` runs the grid on Ray.
 
 from dockingrl.grid.driver import run_grid
 from dockingrl.grid.files import Grid, Trial, grid_names, load_grid, select_trials
-from dockingrl.grid.folders import collect_trial, config_mismatch, finished_summary, progress
+from dockingrl.grid.folders import (
+    collect_trial,
+    config_mismatch,
+    finished_summary,
+    finished_trial,
+    progress,
+)
 from dockingrl.grid.trial import run_trial
 
 __all__ = [
@@ -29,6 +35,7 @@ __all__ = [
     "collect_trial",
     "config_mismatch",
     "finished_summary",
+    "finished_trial",
     "grid_names",
     "load_grid",
     "progress",

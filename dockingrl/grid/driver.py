@@ -13,7 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from dockingrl.grid.files import Grid, Trial
-from dockingrl.grid.folders import collect_trial, finished_summary, lock_pid
+from dockingrl.grid.folders import (
+    collect_trial,
+    finished_summary,
+    finished_trial,
+)
 from dockingrl.grid.trial import run_trial
 from dockingrl.grid.view import GridView
 
@@ -81,7 +85,13 @@ def run_grid(
     import ray
 
     grid.out.mkdir(parents=True, exist_ok=True)
-    states = {t.name: ("finished" if finished_summary(grid, t) else "pending") for t in grid.trials}
+    states: dict[str, str] = {}
+    notes: dict[str, str] = {}
+    for trial in grid.trials:
+        summary, refusal = finished_trial(grid, trial)
+        states[trial.name] = "pending" if summary is None else "failed" if refusal else "finished"
+        if refusal:  # a result of another config is neither counted nor overwritten
+            notes[trial.name] = refusal
     for trial in grid.trials:  # finished in a run folder, not yet collected
         if states[trial.name] == "finished" and grid.collect:
             dest = grid.collect / trial.name
@@ -90,9 +100,8 @@ def run_grid(
                 and (grid.run_dir(trial) / "summary.json").exists()
             ):
                 collect_trial(grid.run_dir(trial), dest)
-    todo = [t for t in grid.trials if states[t.name] != "finished"]
+    todo = [t for t in grid.trials if states[t.name] == "pending"]
     view = GridView(grid, view_every)
-    notes: dict[str, str] = {}
     if not todo:
         view.show(states, {}, notes, force=True)
         return states
@@ -204,12 +213,14 @@ def run_grid(
 
 
 def _stop_trials(grid: Grid, running: dict, local: bool) -> None:
-    """Ask the running trials to checkpoint and stop: SIGTERM to the process named in each run
-    folder's lock (local trials); trials elsewhere are cancelled by Ray."""
+    """Ask the running trials to checkpoint and stop: SIGTERM to the process that holds each
+    run folder's lock (local trials); the others, and trials elsewhere, are cancelled by Ray."""
     import ray
 
+    from dockingrl.training.run_folder import RunLock
+
     for ref, r in running.items():
-        pid = lock_pid(grid.run_dir(r.trial)) if local else None
+        pid = RunLock.holder(grid.run_dir(r.trial)) if local else None
         if pid is not None:
             try:
                 os.kill(pid, signal.SIGTERM)

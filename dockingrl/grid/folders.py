@@ -9,6 +9,7 @@ import shutil
 from pathlib import Path
 
 from dockingrl.grid.files import Grid, Trial
+from dockingrl.io import fsync_path, sync_tree
 
 #: a finished trial's files that ``collect`` keeps (small; the run folder keeps the rest)
 COLLECTED = ("config.json", "summary.json", "eval.json", "curves.csv", "policy.pt")
@@ -23,12 +24,39 @@ def read_json(path: Path) -> dict | None:
         return None
 
 
-def finished_summary(grid: Grid, trial: Trial) -> dict | None:
-    """The ``summary.json`` of the trial if it finished (in its run folder or ``collect``)."""
+def finished_trial(grid: Grid, trial: Trial) -> tuple[dict | None, str]:
+    """The ``summary.json`` of the trial if it finished (in its run folder or ``collect``),
+    and, where that run's saved config differs from the one the grid asks for now
+    (:func:`config_mismatch`), the one-line refusal of its folder ("" otherwise)."""
     for folder in (grid.run_dir(trial), grid.collect and grid.collect / trial.name):
         if folder and (summary := read_json(folder / "summary.json")) is not None:
-            return summary
-    return None
+            changed = saved_config_differs(grid, trial, folder)
+            return summary, another_config(folder, changed) if changed else ""
+    return None, ""
+
+
+def finished_summary(grid: Grid, trial: Trial) -> dict | None:
+    """The ``summary.json`` of the trial if it finished with the grid's config."""
+    summary, refusal = finished_trial(grid, trial)
+    return None if refusal else summary
+
+
+def saved_config_differs(grid: Grid, trial: Trial, folder: Path) -> list[str]:
+    """The fields in which the config saved in ``folder`` differs from the trial's (none
+    where the folder holds no config)."""
+    saved = read_json(folder / "config.json")
+    if saved is None:
+        return []
+    cfg = trial.config(grid.out, grid.threads)
+    return config_mismatch(saved, cfg.to_dict(), type(cfg)().to_dict())
+
+
+def another_config(folder: Path, changed: list[str]) -> str:
+    """The one-line refusal of a folder that holds a run of another config."""
+    return (
+        f"{folder} holds a run of another config ({', '.join(changed)} differ): move it away "
+        "or name the changed recipe anew"
+    )
 
 
 def config_mismatch(saved: dict, wanted: dict, defaults: dict | None = None) -> list[str]:
@@ -75,13 +103,7 @@ def collect_trial(run_dir: Path, dest: Path) -> None:
     for name in COLLECTED:
         if (run_dir / name).exists():
             shutil.copy2(run_dir / name, tmp / name)
+    sync_tree(tmp)
     shutil.rmtree(dest, ignore_errors=True)
     tmp.rename(dest)
-
-
-def lock_pid(run_dir: Path) -> int | None:
-    try:
-        text = (run_dir / "run.lock").read_text().strip()
-        return int(text.splitlines()[-1]) if text else None
-    except (OSError, ValueError):
-        return None
+    fsync_path(dest.parent)  # the rename

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from dockingrl.grid.files import Trial
-from dockingrl.grid.folders import config_mismatch, read_json
+from dockingrl.grid.folders import another_config, config_mismatch, read_json
 
 
 def run_trial(trial: Trial, out: str, threads: int) -> dict:
@@ -30,17 +30,15 @@ def run_trial(trial: Trial, out: str, threads: int) -> dict:
         with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
             while True:
                 try:
-                    if (run_dir / "summary.json").exists():
-                        return result
                     cfg = trial.config(Path(out), threads)
                     saved = read_json(run_dir / "config.json")
                     if saved is not None:
                         changed = config_mismatch(saved, cfg.to_dict(), type(cfg)().to_dict())
                         if changed:
-                            raise ValueError(
-                                f"{run_dir} holds a run of another config ({', '.join(changed)} "
-                                "differ): move it away or name the changed recipe anew"
-                            )
+                            raise ValueError(another_config(run_dir, changed))
+                    if (run_dir / "summary.json").exists():
+                        return result
+                    if saved is not None:
                         train(
                             None,
                             resume=run_dir,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from dockingrl.io import write_json
+from dockingrl.io import sync_tree, write_json
 from dockingrl.training.logger import drop_curves_after
 
 #: the config fields that shape an agent's networks: a warm start needs them equal
@@ -116,6 +116,7 @@ class Checkpoints:
             "codes": self.codes,
         }
         write_state(tmp, state)
+        sync_tree(tmp)  # on disk before latest.json names it and the older ones go
         shutil.rmtree(path, ignore_errors=True)
         tmp.rename(path)
         write_json(self.checkpoint_root / "latest.json", {"path": path.name, "frames": self.frames})

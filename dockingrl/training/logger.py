@@ -96,10 +96,7 @@ class RunLogger:
         (wandb) is sent the rows that ``logged.json`` says it lacks."""
         if self.backend is None:
             return
-        rows: list = []
-        if self.curves.exists():
-            with self.curves.open(newline="") as f:
-                rows = [(int(s), k, float(v)) for s, k, v in list(csv.reader(f))[1:]]
+        rows = curve_rows(self.curves)
         if self.kind == "csv":
             experiment = self.backend.experiment
             for handle in experiment.files.values():
@@ -136,14 +133,29 @@ class RunLogger:
                 experiment.finish()
 
 
+def curve_rows(path: Path) -> list[tuple[int, str, float]]:
+    """The ``(step, key, value)`` rows of a ``curves.csv`` whose writing finished: a last line
+    without its newline (a write cut short by a kill or a full disk) and any line that does
+    not read as a step, a key and a number are left out."""
+    try:
+        lines = path.read_text(errors="replace").split("\n")[1:-1]
+    except FileNotFoundError:
+        return []
+    rows = []
+    for row in csv.reader(lines):
+        try:
+            step, key, value = row
+            rows.append((int(step), key, float(value)))
+        except ValueError:
+            continue
+    return rows
+
+
 def read_curves(run_dir: str | Path) -> dict[str, list[tuple[int, float]]]:
     """``curves.csv`` as ``{key: [(step, value), ...]}``."""
     curves: dict[str, list[tuple[int, float]]] = {}
-    path = Path(run_dir) / "curves.csv"
-    if path.exists():
-        with path.open() as f:
-            for row in csv.DictReader(f):
-                curves.setdefault(row["key"], []).append((int(row["step"]), float(row["value"])))
+    for step, key, value in curve_rows(Path(run_dir) / "curves.csv"):
+        curves.setdefault(key, []).append((step, value))
     return curves
 
 
@@ -155,13 +167,11 @@ def drop_curves_after(run_dir: Path, frames: int, total_steps: int) -> None:
     path = run_dir / "curves.csv"
     if not path.exists():
         return
-    with path.open() as f:
-        rows = list(csv.reader(f))
-    kept = [rows[0]] + [
+    kept = [("step", "key", "value")] + [
         row
-        for row in rows[1:]
-        if int(row[0]) < frames
-        or (int(row[0]) == frames and not (again and row[1].startswith("eval/final_")))
+        for row in curve_rows(path)
+        if row[0] < frames
+        or (row[0] == frames and not (again and row[1].startswith("eval/final_")))
     ]
 
     def write(tmp: Path) -> None:

@@ -42,6 +42,24 @@ class RunLock:
     def __exit__(self, *exc) -> None:
         self._file.close()
 
+    @staticmethod
+    def holder(run_dir: Path) -> int | None:
+        """The process that trains in ``run_dir`` now, or None: the PID in ``run.lock`` only
+        while that lock is held (a free lock's PID is of a process that has ended, and the
+        number may since name another)."""
+        import fcntl
+
+        try:
+            with (Path(run_dir) / "run.lock").open() as f:
+                try:
+                    fcntl.flock(f, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    text = f.read().strip()
+                    return int(text.splitlines()[-1]) if text else None
+                return None  # nobody holds it (closing the file releases the shared lock)
+        except (OSError, ValueError):
+            return None
+
 
 def code_version() -> dict:
     """The git commit of the dockingrl source that runs, and whether the package's tracked

@@ -13,6 +13,7 @@ from dockingrl.io import (
     first_line,
     read_artifact,
     read_to_upgrade,
+    require_finite,
     require_keys,
     save_artifact,
 )
@@ -79,6 +80,9 @@ def load_filter_params(transform, source: str | Path | Mapping) -> dict:
         require_keys("filter parameters", payload, WHAT, KEYS)
     else:
         payload = read_filter_params(source)
+    name = source if not isinstance(source, Mapping) else "filter parameters"
+    for key in ("process_noise", "measurement_noise", "noise_context"):
+        require_finite(name, key, payload[key])
     try:
         transform.process_noise.set_manoeuvre("log_manoeuvre_gain" in payload["process_noise"])
         transform.process_noise.load_state_dict(payload["process_noise"])
@@ -89,7 +93,6 @@ def load_filter_params(transform, source: str | Path | Mapping) -> dict:
         if context is not None:
             transform.noise_context.load_state_dict(context)
     except (KeyError, RuntimeError, TypeError, ValueError) as exc:
-        name = source if not isinstance(source, Mapping) else "filter parameters"
         raise ArtifactError(f"{name}: do not fit the EKF ({first_line(exc)})") from None
     return payload
 
