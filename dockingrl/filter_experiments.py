@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dockingrl.env import DockingConfig
 from dockingrl.filter_learning import (
     OBJECTIVES,
     FilterFit,
@@ -23,6 +24,25 @@ from dockingrl.io import atomic_write, write_json
 
 #: seed of the held-out rollouts on which learned and hand-tuned filters are compared
 HELD_OUT_SEED = 1_000
+
+
+def training_rollouts(fit: FilterFit, config: DockingConfig):
+    """The rollouts a filter is fitted on (seed ``fit.seed``), never the held-out ones."""
+    if fit.seed == HELD_OUT_SEED:
+        raise ValueError(
+            f"seed {HELD_OUT_SEED} draws the held-out rollouts the filter is scored on; "
+            "train on another seed"
+        )
+    return record_rollouts(
+        fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=fit.seed
+    )
+
+
+def held_out_rollouts(fit: FilterFit, config: DockingConfig):
+    """The rollouts a fitted filter is scored on (seed :data:`HELD_OUT_SEED`)."""
+    return record_rollouts(
+        fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=HELD_OUT_SEED
+    )
 
 
 def fit_new_filter(
@@ -83,9 +103,7 @@ def learn_filter(
     out = Path(out)
     config = level_config(level, mismatched_config(noise_scale))
     start = time.perf_counter()
-    data = record_rollouts(
-        fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=fit.seed
-    )
+    data = training_rollouts(fit, config)
     ekf, history = fit_new_filter(
         config,
         data,
@@ -106,9 +124,7 @@ def learn_filter(
         compensate_latency=compensate_latency,
         command=command,
     )
-    held_out = record_rollouts(
-        fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=HELD_OUT_SEED
-    )
+    held_out = held_out_rollouts(fit, config)
     report = {
         "command": command,
         "objective": fit.objective,
@@ -227,12 +243,8 @@ def filter_ablation(
     ]
     for condition, scale in (("nominal", 1.0), ("mismatched", mismatch)):
         config = mismatched_config(scale)
-        data = record_rollouts(
-            fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=fit.seed
-        )
-        held_out = record_rollouts(
-            fit.num_envs, fit.steps, config=config, behaviour=fit.behaviour, seed=HELD_OUT_SEED
-        )
+        data = training_rollouts(fit, config)
+        held_out = held_out_rollouts(fit, config)
         filters = {"hand-tuned (Tables 1-2)": make_filter(config)}
         if range_noise_from == "estimate":  # the control: Table 2's R, estimated range
             filters["hand-tuned, R from the estimated range"] = make_filter(

@@ -90,6 +90,7 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["learn-filter", "--window", "1"], "argument --window: must be an integer >= 2"),
         (["learn-filter", "--lr", "0"], "argument --lr: must be > 0"),
         (["learn-filter", "--steps", "20", "--window", "50"], "--steps (20) must exceed"),
+        (["learn-filter", "--seed", "1000"], "--seed 1000 draws the held-out rollouts"),
         (["filter-ablation", "--mismatch", "-2"], "argument --mismatch: must be > 0"),
         (["filter-ablation", "--whiteness", "0.5"], "--whiteness applies to learn-filter"),
         (["ppo-filter-comparison", "--total-steps", "0", "--filter-params", "f.pt"], "must be"),

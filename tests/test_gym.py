@@ -154,6 +154,17 @@ def test_refusals_are_one_clear_line():
         vec.reset(seed=[1, 2, 3, 4])
     with pytest.raises(ValueError, match="autoreset_mode must be one of 'NextStep', 'SameStep'"):
         DockingVectorEnv(2, autoreset_mode="Disabled")
+    # a constructor seed would be overwritten by the first reset: refused, for both envs
+    for make in (lambda: gymnasium.make(ID, seed=5), lambda: DockingVectorEnv(2, seed=5)):
+        with pytest.raises(
+            ValueError, match=r"seeded by reset\(seed=...\), not by its constructor"
+        ):
+            make()
+    # the realism options leave the observation space (a believed current beyond the range)
+    from dockingrl.env.levels import level_config
+
+    with pytest.raises(ValueError, match="steps the paper's task only"):
+        DockingVectorEnv(2, "compound", observe_current=True, config=level_config("L5"))
 
 
 def test_reset_options_pin_the_start():

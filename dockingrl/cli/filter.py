@@ -105,12 +105,16 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_fit_arguments(args: argparse.Namespace) -> None:
-    """Refuse, before any rollout, a window the recorded steps cannot fill and whiteness lags
-    the window cannot hold."""
+    """Refuse, before any rollout, a window the recorded steps cannot fill, whiteness lags
+    the window cannot hold and training rollouts that would be the held-out ones."""
     if args.steps <= args.window:
         raise UsageError(f"--steps ({args.steps}) must exceed --window ({args.window})")
     if args.whiteness > 0 and args.lags >= args.window:
         raise UsageError(f"--lags ({args.lags}) must be below --window ({args.window})")
+    from dockingrl.filter_experiments import HELD_OUT_SEED
+
+    if args.seed == HELD_OUT_SEED:
+        raise UsageError(f"--seed {HELD_OUT_SEED} draws the held-out rollouts; train on another")
 
 
 def _fit_options(args: argparse.Namespace, objective: str) -> FilterFit:

@@ -42,6 +42,12 @@ _SIMULATOR_STATE = StateAccessMixin._STATE_ATTRIBUTES
 #: what ``reset(options=...)`` accepts: a start pose and a current for that episode
 RESET_OPTIONS = ("pose", "ocean_current")
 
+#: why a Gymnasium env refuses the realism options
+PAPER_TASK_ONLY = (
+    "the Gymnasium env steps the paper's task only; for the realism options of "
+    "DockingConfig (docs/realism.md) use dockingrl.make_env"
+)
+
 
 def reading_bounds() -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` float32 of one 6-number reading of eq. 2 (raw, true or filtered):
@@ -129,10 +135,7 @@ class DockingGymEnv(gymnasium.Env):
         elif not isinstance(simulator, DockingEnv) or simulator.num_envs != 1:
             raise ValueError(f"simulator must be a DockingEnv of 1 env, got {simulator!r}")
         if simulator.config.realistic:
-            raise ValueError(
-                "the Gymnasium env steps the paper's task only; for the realism options of "
-                "DockingConfig (docs/realism.md) use dockingrl.make_env"
-            )
+            raise ValueError(PAPER_TASK_ONLY)
         self._env = simulator
         self.config = simulator.config
         self.action_space = action_space(self.config)

@@ -22,7 +22,7 @@ from gymnasium import spaces
 from torchrl.envs import TransformedEnv
 
 from dockingrl.env import DockingConfig
-from dockingrl.env.gym_env import DockingGymEnv, reading_bounds
+from dockingrl.env.gym_env import PAPER_TASK_ONLY, DockingGymEnv, reading_bounds
 from dockingrl.scenarios import make_env, observation_layout
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.ekf import filter_entries, measurement_function, measurement_noise_std
@@ -73,6 +73,19 @@ def scenario_pipeline(
         observe_current=observe_current,
         observe_command=observe_command,
     )
+
+
+def gym_pipeline(scenario: str, num_envs: int, **options):
+    """:func:`scenario_pipeline` for a Gymnasium env, which seeds at ``reset(seed=...)`` and
+    steps the paper's task only (its observation space bounds the paper's readings)."""
+    if "seed" in options:
+        raise ValueError(
+            "seed: a Gymnasium env is seeded by reset(seed=...), not by its constructor"
+        )
+    pipeline = scenario_pipeline(scenario, num_envs, **options)
+    if pipeline.base_env.config.realistic:
+        raise ValueError(PAPER_TASK_ONLY)
+    return pipeline
 
 
 def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.Box:
@@ -163,7 +176,7 @@ class DockingScenarioEnv(DockingGymEnv):
             raise ValueError(
                 f"render_mode must be None, 'human' or 'rgb_array', got {render_mode!r}"
             )
-        pipeline = scenario_pipeline(scenario, 1, **options)
+        pipeline = gym_pipeline(scenario, 1, **options)
         ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
         if fast is None:
             config = pipeline.base_env.config

@@ -15,7 +15,7 @@ from torchrl.envs.utils import step_mdp
 
 from dockingrl.env.gym_env import action_space
 from dockingrl.env.specs import ACTION_DIM
-from dockingrl.gym.single import observation_space, scenario_pipeline
+from dockingrl.gym.single import gym_pipeline, observation_space
 from dockingrl.scenarios import observation_layout
 
 #: per-env entries of ``info`` (every sub-env has each, so each ``_key`` mask is all True)
@@ -82,9 +82,7 @@ class DockingVectorEnv(VectorEnv):
         if mode not in AUTORESET_MODES:
             valid = ", ".join(repr(m.value) for m in AUTORESET_MODES)
             raise ValueError(f"autoreset_mode must be one of {valid}, got {autoreset_mode!r}")
-        self.pipeline = scenario_pipeline(
-            scenario, num_envs, device=device, compile=compile, **options
-        )
+        self.pipeline = gym_pipeline(scenario, num_envs, device=device, compile=compile, **options)
         self.num_envs = int(num_envs)
         self.scenario = scenario
         self.config = self.pipeline.base_env.config
