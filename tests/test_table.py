@@ -194,6 +194,20 @@ def test_a_seed_given_twice_or_budgets_that_differ_are_refused(tmp_path):
     c = fake_run(tmp_path, "sac", "sac", "noise", 1, 61.0, config={"total_steps": 1_000_000})
     with pytest.raises(SystemExit, match="different total_steps"):
         main(["table", str(a), str(c), "--out", str(tmp_path / "out")])
+    # a `--algo sac` run (no recipe) and a `--recipe sac` one share the key sac: not seeds
+    d = fake_run(tmp_path, "sac", "sac", "noise", 2, 70.0, config={"action_repeat": 4})
+    e = fake_run(
+        tmp_path,
+        "sac",
+        "sac",
+        "noise",
+        3,
+        71.0,
+        config={"threads": 2, "out": "x", "init_from": "first/s3"},
+    )
+    with pytest.raises(SystemExit, match=r"cell sac noise: its runs differ in action_repeat "):
+        main(["table", str(a), str(d), "--out", str(tmp_path / "out")])
+    main(["table", str(a), str(e), "--out", str(tmp_path / "out")])  # one config
 
 
 def test_a_third_of_the_current_without_episodes_in_a_run(tmp_path):

@@ -153,9 +153,25 @@ def by_fifth(runs: list[dict]) -> dict | None:
     return {"mean": means, "per_seed": per_seed, "seeds_still_rising": int(last_best)}
 
 
+def _configs_differ(runs: list[dict]) -> list[str]:
+    """The fields beyond the seed, its first stage (``init_from``) and where and how fast each
+    ran in which the configs of a cell's runs differ; a field a config lacks counts as its
+    algorithm's default."""
+    from dockingrl.agents.config import CONFIGS
+    from dockingrl.grid.folders import config_mismatch
+
+    first = runs[0]["config"]
+    config_class = CONFIGS.get(first["algo"])
+    defaults = config_class().to_dict() if config_class else {}
+    wanted = {**defaults, **first}
+    changed = {k for r in runs[1:] for k in config_mismatch(r["config"], wanted, defaults)}
+    return sorted(changed - {"seed", "init_from"})  # each seed's own (a fine-tune's first stage)
+
+
 def cell(runs: list[dict]) -> dict:
     """One cell of the table from its seeds' runs (every per-seed list in the order of
-    ``seeds``). Raises ``ValueError`` for a seed given twice or seeds of different budgets."""
+    ``seeds``). Raises ``ValueError`` for a seed given twice or runs of different configs
+    (budgets, or any other field but the seed)."""
     from scipy.stats import binomtest
 
     runs = sorted(runs, key=lambda r: r["config"]["seed"])
@@ -169,6 +185,12 @@ def cell(runs: list[dict]) -> dict:
     budgets = sorted({r["config"].get("total_steps") for r in runs}, key=str)
     if len(budgets) > 1:
         raise ValueError(f"cell {name}: its runs train for different total_steps {budgets}")
+    differ = _configs_differ(runs)
+    if differ:
+        raise ValueError(
+            f"cell {name}: its runs differ in {', '.join(differ)} beyond their seeds "
+            f"({', '.join(str(r['dir']) for r in runs)}): not seeds of one config"
+        )
     success = [r["eval"]["success_rate"] for r in runs]
     episodes = [r["eval"]["episodes"] for r in runs]
     docked = round(sum(s * n / 100 for s, n in zip(success, episodes, strict=True)))
