@@ -12,13 +12,13 @@ from dockingrl.io import atomic_write, write_json
 def _train_or_resume(cfg, run_dir: Path, command: str) -> dict:
     """The run of ``cfg`` in ``run_dir``: read back when finished, resumed when interrupted,
     trained otherwise; a folder holding a run of another config is refused."""
-    from dockingrl.grid.folders import config_mismatch
+    from dockingrl.agents.config_diff import saved_differs
     from dockingrl.training import train
 
     if not (run_dir / "config.json").exists():
         return train(cfg, progress=False, command=command)
     saved = json.loads((run_dir / "config.json").read_text())
-    differ = config_mismatch(saved, cfg.to_dict(), type(cfg)().to_dict())
+    differ = saved_differs(saved, cfg)
     if differ:
         raise ValueError(
             f"{run_dir} holds a run of another config ({', '.join(differ)} differ): "

@@ -13,7 +13,8 @@ import pytest
 from helpers import fake_run
 
 from dockingrl.agents.config import SACConfig
-from dockingrl.grid import config_mismatch, load_grid, progress
+from dockingrl.agents.config_diff import config_mismatch
+from dockingrl.grid import load_grid, progress
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -289,6 +290,21 @@ def test_more_trials_than_cores_share_them():
     assert 3 * task_cpus(cpus=2, threads=1, limit=3) <= 2
     assert task_cpus(cpus=16, threads=4, limit=6) == 2.0  # whole CPUs above one
     assert 6 * task_cpus(cpus=16, threads=4, limit=6) <= 16
+
+
+def test_a_trial_is_expected_to_take_as_long_as_its_finished_kin():
+    from dockingrl.grid.driver import _estimate
+    from dockingrl.grid.files import Trial
+
+    kin = [Trial("sac", "compound", s, {"total_steps": 9}, estimate_s=100.0) for s in range(3)]
+    other = Trial("sac", "compound", 3, {"total_steps": 8}, estimate_s=50.0)
+    done = {
+        kin[0].name: {"train_wall_clock_s": 300.0, "selection_wall_clock_s": 100.0},
+        kin[1].name: {"train_wall_clock_s": 200.0},
+        other.name: {"train_wall_clock_s": 9999.0},  # other overrides: another total
+    }
+    assert _estimate(kin[2], kin + [other], done) == pytest.approx(1.1 * 300.0)
+    assert _estimate(kin[2], kin + [other], {}) == 100.0  # none finished: the grid file's
 
 
 def test_max_concurrent_above_the_cores_runs_every_trial_at_once(tmp_path, monkeypatch):

@@ -271,3 +271,21 @@ def test_periodic_success_per_fifth_of_the_budget(tmp_path):
     assert fifths["seeds_still_rising"] == 1
     md = (tmp_path / "out" / "table.md").read_text()
     assert "| td3 | noise | 10.0 | 30.0 | 65.0 | - | 60.0 | 1 of 2 |" in md
+
+
+def test_the_faster_claim_is_welchs_test_of_the_episodes():
+    import numpy as np
+    from scipy.stats import ttest_ind
+
+    from dockingrl.table.claims import faster_than_baseline
+
+    rng = np.random.default_rng(0)
+    agent, controller = rng.normal(50, 9, 8), rng.normal(60, 12, 5)
+
+    def stats(v):  # as an evaluation writes them: the std over its episodes, ddof=0
+        return {"n": v.size, "mean": float(v.mean()), "std": float(v.std())}
+
+    cells = {("sac", "compound"): {"time_success_s": stats(agent)}}
+    [claim] = faster_than_baseline(cells, {"time_success_s": stats(controller)})
+    expected = ttest_ind(agent, controller, equal_var=False).pvalue
+    assert claim["p_value"] == pytest.approx(expected, rel=1e-9)

@@ -618,6 +618,7 @@ def test_train_level_sets_the_whole_world_of_the_run(tmp_path, short_episodes, m
     assert built and all(config.realistic for config in built)  # probe and training envs
     saved = json.loads((Path(result["run_dir"]) / "config.json").read_text())
     assert saved["train_level"] == "L5"
+    assert result["eval"]["level"] == "L5"  # the final evaluation names its world
     with pytest.raises(ValueError, match="train_level: unknown stress level; valid: L0, L1"):
         tiny_config("sac", "compound", tmp_path, train_level="L9")
 

@@ -25,8 +25,10 @@ def cmd_grid(args: argparse.Namespace) -> int:
 
         for trial in grid.trials:
             s, refusal = finished_trial(grid, trial)
-            state = f"finished, {s['success_rate']:.1f} %" if s else "not finished"
-            state = f"finished with another config: {refusal}" if refusal else state
+            if refusal:
+                state = f"finished with another config: {refusal}"
+            else:
+                state = f"finished, {s['success_rate']:.1f} %" if s else "not finished"
             print(f"{trial.name:<34} {state}")
         return 0
     states = run_grid(

@@ -22,7 +22,6 @@ from dockingrl.grid.driver import run_grid
 from dockingrl.grid.files import Grid, Trial, grid_names, load_grid, select_trials
 from dockingrl.grid.folders import (
     collect_trial,
-    config_mismatch,
     finished_summary,
     finished_trial,
     progress,
@@ -33,7 +32,6 @@ __all__ = [
     "Grid",
     "Trial",
     "collect_trial",
-    "config_mismatch",
     "finished_summary",
     "finished_trial",
     "grid_names",

@@ -47,14 +47,15 @@ def task_cpus(cpus: int, threads: int, limit: int) -> float:
     return math.floor(share * 1000) / 1000 if share < 1 else float(math.floor(share))
 
 
-def _estimate(grid: Grid, trial: Trial) -> float:
+def _estimate(trial: Trial, trials: list[Trial], summaries: dict[str, dict]) -> float:
     """Expected seconds of the trial: the mean of its recipe's finished trials of the grid
-    with the same total (train and final evaluation), else the grid file's estimate."""
+    with the same total (train and final evaluation; ``summaries`` by trial name), else the
+    grid file's estimate."""
     seen = []
-    for other in grid.trials:
+    for other in trials:
         if other.recipe != trial.recipe or other.overrides != trial.overrides:
             continue
-        s = finished_summary(grid, other)
+        s = summaries.get(other.name)
         if s and "train_wall_clock_s" in s:
             seen.append(s["train_wall_clock_s"] + s.get("selection_wall_clock_s", 0.0))
     return 1.1 * sum(seen) / len(seen) if seen else trial.estimate_s
@@ -87,8 +88,11 @@ def run_grid(
     grid.out.mkdir(parents=True, exist_ok=True)
     states: dict[str, str] = {}
     notes: dict[str, str] = {}
+    summaries: dict[str, dict] = {}  # of the trials finished with the grid's config
     for trial in grid.trials:
         summary, refusal = finished_trial(grid, trial)
+        if summary is not None and not refusal:
+            summaries[trial.name] = summary
         states[trial.name] = "pending" if summary is None else "failed" if refusal else "finished"
         if refusal:  # a result of another config is neither counted nor overwritten
             notes[trial.name] = refusal
@@ -147,7 +151,7 @@ def run_grid(
                 if stop_after and ended + len(running) >= stop_after:
                     break
                 left = hours * 3600 - (time.time() - started_at) if hours > 0 else float("inf")
-                fits = [t for t in todo if slower * _estimate(grid, t) <= left]
+                fits = [t for t in todo if slower * _estimate(t, grid.trials, summaries) <= left]
                 if not fits:
                     break
                 trial = fits[0]
@@ -200,6 +204,7 @@ def run_grid(
                     if grid.collect:
                         collect_trial(grid.run_dir(r.trial), grid.collect / r.trial.name)
                     s = finished_summary(grid, r.trial) or {}
+                    summaries[r.trial.name] = s
                     notes[r.trial.name] = f"success {s.get('success_rate', float('nan')):.1f} %"
                 else:
                     notes[r.trial.name] = result["error"].splitlines()[0][:160]

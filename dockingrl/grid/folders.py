@@ -8,13 +8,12 @@ import json
 import shutil
 from pathlib import Path
 
+from dockingrl.agents.config_diff import saved_differs
 from dockingrl.grid.files import Grid, Trial
 from dockingrl.io import fsync_path, sync_tree
 
 #: a finished trial's files that ``collect`` keeps (small; the run folder keeps the rest)
 COLLECTED = ("config.json", "summary.json", "eval.json", "curves.csv", "policy.pt")
-#: fields a trial's saved config may differ in from the grid's without being another trial
-_HOW_NOT_WHAT = ("threads", "device", "out", "run_name", "logger", "wandb_online", "compile")
 
 
 def read_json(path: Path) -> dict | None:
@@ -27,7 +26,8 @@ def read_json(path: Path) -> dict | None:
 def finished_trial(grid: Grid, trial: Trial) -> tuple[dict | None, str]:
     """The ``summary.json`` of the trial if it finished (in its run folder or ``collect``),
     and, where that run's saved config differs from the one the grid asks for now
-    (:func:`config_mismatch`), the one-line refusal of its folder ("" otherwise)."""
+    (:func:`~dockingrl.agents.config_diff.config_mismatch`), the one-line refusal of its
+    folder ("" otherwise)."""
     for folder in (grid.run_dir(trial), grid.collect and grid.collect / trial.name):
         if folder and (summary := read_json(folder / "summary.json")) is not None:
             changed = saved_config_differs(grid, trial, folder)
@@ -47,8 +47,7 @@ def saved_config_differs(grid: Grid, trial: Trial, folder: Path) -> list[str]:
     saved = read_json(folder / "config.json")
     if saved is None:
         return []
-    cfg = trial.config(grid.out, grid.threads)
-    return config_mismatch(saved, cfg.to_dict(), type(cfg)().to_dict())
+    return saved_differs(saved, trial.config(grid.out, grid.threads))
 
 
 def another_config(folder: Path, changed: list[str]) -> str:
@@ -57,20 +56,6 @@ def another_config(folder: Path, changed: list[str]) -> str:
         f"{folder} holds a run of another config ({', '.join(changed)} differ): move it away "
         "or name the changed recipe anew"
     )
-
-
-def config_mismatch(saved: dict, wanted: dict, defaults: dict | None = None) -> list[str]:
-    """The fields (beyond where and how fast it runs) in which a saved config differs from
-    the one the grid asks for now. A field the saved config lacks (one added to dockingrl
-    after the run started) counts as its value in ``defaults``, the config class's defaults."""
-
-    def plain(config: dict) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()}
-
-    old = {**plain(defaults or {}), **saved}
-    keys = (set(saved) | set(wanted)) - set(_HOW_NOT_WHAT)
-    norm = plain(wanted)
-    return sorted(k for k in keys if old.get(k) != norm.get(k))
 
 
 def progress(run_dir: Path) -> dict:

@@ -6,8 +6,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from dockingrl.agents.config_diff import saved_differs
 from dockingrl.grid.files import Trial
-from dockingrl.grid.folders import another_config, config_mismatch, read_json
+from dockingrl.grid.folders import another_config, read_json
 
 
 def run_trial(trial: Trial, out: str, threads: int) -> dict:
@@ -33,7 +34,7 @@ def run_trial(trial: Trial, out: str, threads: int) -> dict:
                     cfg = trial.config(Path(out), threads)
                     saved = read_json(run_dir / "config.json")
                     if saved is not None:
-                        changed = config_mismatch(saved, cfg.to_dict(), type(cfg)().to_dict())
+                        changed = saved_differs(saved, cfg)
                         if changed:
                             raise ValueError(another_config(run_dir, changed))
                     if (run_dir / "summary.json").exists():

@@ -158,7 +158,7 @@ def _configs_differ(runs: list[dict]) -> list[str]:
     ran in which the configs of a cell's runs differ; a field a config lacks counts as its
     algorithm's default."""
     from dockingrl.agents.config import CONFIGS
-    from dockingrl.grid.folders import config_mismatch
+    from dockingrl.agents.config_diff import config_mismatch
 
     first = runs[0]["config"]
     config_class = CONFIGS.get(first["algo"])

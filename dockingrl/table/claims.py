@@ -13,6 +13,7 @@ comparing RL algorithms over a few seeds.
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from pathlib import Path
 
@@ -173,6 +174,12 @@ def read_baseline(path: Path) -> dict:
     return base
 
 
+def _sample_std(stats: dict) -> float:
+    """The sample standard deviation (``ddof=1``) of ``{"n", "mean", "std"}``, whose ``std`` an
+    evaluation writes over its episodes with ``ddof=0``, as Welch's test takes it."""
+    return stats["std"] * math.sqrt(stats["n"] / (stats["n"] - 1))
+
+
 def faster_than_baseline(cells: dict[tuple[str, str], dict], baseline: dict) -> list[dict]:
     """The paper's claim that learned policies dock faster than the managed surge controller
     (Table 7): per recipe, the mean time of its ``noise`` and ``compound`` cells' successful
@@ -191,7 +198,13 @@ def faster_than_baseline(cells: dict[tuple[str, str], dict], baseline: dict) -> 
             continue
         p = float(
             ttest_ind_from_stats(
-                t["mean"], t["std"], t["n"], base["mean"], base["std"], base["n"], equal_var=False
+                t["mean"],
+                _sample_std(t),
+                t["n"],
+                base["mean"],
+                _sample_std(base),
+                base["n"],
+                equal_var=False,
             ).pvalue
         )
         diff = t["mean"] - base["mean"]

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import torch
 
+from dockingrl.agents.config_diff import as_saved
 from dockingrl.io import sync_tree, write_json
 from dockingrl.training.logger import drop_curves_after
 
@@ -52,20 +53,16 @@ def network_differences(source: dict, cfg) -> list[str]:
             f"observations of {theirs} and {mine} numbers"
         )
     # a field the config.json lacks (added to dockingrl since, off by default) counts as the
-    # config class's default, as a grid's saved configs do (grid.folders.config_mismatch)
+    # config class's default, as a grid's saved configs do (agents.config_diff.config_mismatch)
     defaults = type(cfg)().to_dict()
     for name in NETWORK_FIELDS:
         if name not in defaults:
             continue
-        theirs, mine = _listed(source.get(name, defaults[name])), _listed(getattr(cfg, name))
+        theirs = as_saved(source.get(name, defaults[name]))
+        mine = as_saved(getattr(cfg, name))
         if theirs != mine:
             differ.append(f"{name}: {theirs} there, {mine} here")
     return differ
-
-
-def _listed(value):
-    """``value`` with a tuple as a list, as a config.json reads it back."""
-    return list(value) if isinstance(value, tuple) else value
 
 
 def first_stage_hint(recipe: str | None) -> str:

@@ -165,7 +165,12 @@ class Trainer(Checkpoints, Selection):
         )
         start = time.perf_counter()
         final = self._evaluate(cfg.final_eval_episodes, cfg.seed + 10_000, progress=self.progress)
-        final.update(algo=cfg.algo, policy=str(self.run_dir / "policy.pt"), command=self.command)
+        final.update(
+            algo=cfg.algo,
+            level=cfg.train_level,  # the world of the final evaluation: the run's own
+            policy=str(self.run_dir / "policy.pt"),
+            command=self.command,
+        )
         write_json(self.run_dir / "eval.json", final)
         summary = {
             "algo": cfg.algo,
