@@ -290,6 +290,19 @@ class OnboardPolicy(nn.Module):
             self._state = None
             return
         mean, cov, command, age, *history = self._state
+        if (
+            not isinstance(mask, torch.Tensor)
+            or mask.dtype != torch.bool
+            or mask.shape != (age.shape[0],)
+        ):
+            raise ValueError(
+                f"mask must be a bool tensor of shape ({age.shape[0]},), one per vehicle, got "
+                + (
+                    f"{mask.dtype} {tuple(mask.shape)}"
+                    if isinstance(mask, torch.Tensor)
+                    else type(mask).__name__
+                )
+            )
         self._state = (mean, cov, command, torch.where(mask.view(-1, 1), -1.0, age), *history)
 
     @torch.no_grad()
@@ -303,6 +316,11 @@ class OnboardPolicy(nn.Module):
         only (``None``: every reading is new; a scenario without a filter ignores them)."""
         z, current = self._check(z, "z", OBS_DIM), self._check(current, "current", 2)
         single = z.dim() == 1
+        if z.shape[:-1] != current.shape[:-1]:
+            raise ValueError(
+                f"z {tuple(z.shape)} and current {tuple(current.shape)} must hold the same "
+                "vehicles (the same leading shape)"
+            )
         z, current = z.reshape(-1, OBS_DIM), current.reshape(-1, 2)
         if sensor_age is not None:
             sensor_age = self._check(sensor_age, "sensor_age", len(SENSORS))

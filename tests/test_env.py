@@ -46,6 +46,15 @@ def random_rollout(seed, steps=120, num_envs=8):
     return torch.stack(out, dim=1)
 
 
+def test_a_seed_beyond_the_generators_is_one_line():
+    env = DockingEnv(1)
+    for seed in (2**70, -1):
+        with pytest.raises(ValueError, match=r"seed must be an integer in \[0, 2\*\*63\)"):
+            env.set_seed(seed)
+    with pytest.raises(TypeError, match="seed must be an integer, got float"):
+        env.set_seed(1.5)
+
+
 def test_same_seed_gives_identical_rollouts():
     a, b = random_rollout(seed=7), random_rollout(seed=7)
     for key in ("observation", "true_state", "reward", "ocean_current", "done"):

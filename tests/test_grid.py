@@ -68,9 +68,17 @@ def test_table6_is_the_papers_grid():
         ("groups:\n  - recipes: [sac]\n    seeds: 3\n", "seeds must be a list"),
         ("overrides: [1]\ngroups:\n  - recipes: [sac]\n", "overrides must be a mapping"),
         ("groups:\n  - recipes: [sac]\n    overrides: 5\n", "group 0: overrides must be"),
-        ("groups:\n  - recipes: [sac]\n    estimate_s: abc\n", "estimate_s must be a number"),
+        (
+            "groups:\n  - recipes: [sac]\n    estimate_s: abc\n",
+            "estimate_s must be a finite number",
+        ),
         ("groups:\n  - recipes: sac\n", "recipes must be a list of names"),
         ("scenarios: compound\ngroups:\n  - recipes: [sac]\n", "scenarios must be a list"),
+        ("groups:\n  - recipes: [sac]\n    estimate_s: .nan\n", "estimate_s must be a finite"),
+        ("out: 5\ngroups:\n  - recipes: [sac]\n", "out must be a string"),
+        ("name: [a, b]\ngroups:\n  - recipes: [sac]\n", "name must be a string"),
+        ("threads: true\ngroups:\n  - recipes: [sac]\n", "threads must be an integer"),
+        ("overrides: {1: 2}\ngroups:\n  - recipes: [sac]\n", "overrides must be a mapping"),
     ],
 )
 def test_bad_grid_files_are_refused_before_anything_runs(tmp_path, text, message):
@@ -79,6 +87,33 @@ def test_bad_grid_files_are_refused_before_anything_runs(tmp_path, text, message
     with pytest.raises(ValueError, match=message) as info:
         load_grid(path)
     assert "\n" not in str(info.value)
+
+
+def test_a_binary_grid_file_is_one_line(tmp_path):
+    path = tmp_path / "g.yaml"
+    path.write_bytes(b"\xff\xfe\x00groups")
+    with pytest.raises(ValueError, match="g.yaml: not a readable text file"):
+        load_grid(path)
+
+
+def test_damaged_trial_files_are_neither_finished_nor_a_traceback(tmp_path, capsys):
+    from dockingrl.cli import main
+    from dockingrl.grid import run_trial
+
+    grid = load_grid(write_grid(tmp_path, seeds=(0, 1)))
+    torn, listed = (grid.run_dir(t) for t in grid.trials)
+    torn.mkdir(parents=True)
+    cfg = grid.trials[0].config(grid.out, grid.threads)
+    (torn / "config.json").write_text(json.dumps(cfg.to_dict()))
+    (torn / "summary.json").write_text('{"algo": "ppo", "scen')  # torn by a power cut
+    result = run_trial(grid.trials[0], str(grid.out), 1)
+    assert result["status"] == "failed"
+    assert "summary.json: damaged" in result["error"] and "\n" not in result["error"]
+    listed.mkdir(parents=True)
+    (listed / "summary.json").write_text(json.dumps({"success_rate": "high"}))
+    assert main(["grid", str(write_grid(tmp_path, seeds=(0, 1))), "--list"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].endswith("not finished") and out[1].endswith("finished, success unknown")
 
 
 def test_a_trial_of_another_config_is_named():

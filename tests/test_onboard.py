@@ -132,6 +132,13 @@ def test_onboard_policy_refuses_bad_readings():
     policy.act(torch.tensor([20.0, 0, 0, 0, 0, 0]), torch.zeros(2))
     with pytest.raises(ValueError, match="reset"):
         policy.act(torch.zeros(3, 6), torch.zeros(3, 2))
+    with pytest.raises(ValueError, match="must hold the same vehicles"):
+        policy.act(torch.zeros(2, 6), torch.zeros(3, 2))
+    with pytest.raises(ValueError, match="must hold the same vehicles"):
+        policy.act(torch.zeros(6), torch.zeros(3, 2))
+    for mask in (torch.ones(3, dtype=torch.bool), torch.tensor([1])):
+        with pytest.raises(ValueError, match=r"mask must be a bool tensor of shape \(1,\)"):
+            policy.reset(mask)
     with pytest.raises(ValueError, match="unknown scenario"):
         OnboardPolicy(random_actor("sac", "noise"), "noisy")
     with pytest.raises(ValueError, match="no filter"):

@@ -2,6 +2,7 @@
 figures and the pruning of policies, from fake finished runs."""
 
 import json
+import re
 
 import pytest
 from helpers import fake_run
@@ -103,6 +104,36 @@ def test_a_baseline_without_times_is_one_line(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"success_rate": 25.4}))
     with pytest.raises(SystemExit, match="baseline .*bad.json: not an evaluation's eval.json"):
+        main(["table", str(run), "--out", str(tmp_path / "out"), "--baseline", str(bad)])
+
+
+@pytest.mark.parametrize(
+    "file, field, value, says",
+    [
+        ("config", "scenario", "calm", "scenario must be one of no_noise"),
+        ("config", "seed", "1", "seed must be an integer >= 0 (got '1')"),
+        ("summary", "frames", "3e6", "frames must be an integer >= 0"),
+        ("eval", "success_rate", float("nan"), "success_rate must be a number in [0, 100]"),
+        ("eval", "success_rate", 150.0, "success_rate must be a number in [0, 100]"),
+        ("eval", "episodes", 0, "episodes must be an integer >= 1"),
+        ("eval", "time_s", "x", "time_s must be {n, mean, std}"),
+    ],
+)
+def test_a_run_file_field_the_table_cannot_use_is_one_line_naming_it(
+    tmp_path, file, field, value, says
+):
+    run = fake_run(tmp_path, "sac", "sac", "compound", 0, 90.0)
+    path = run / f"{file}.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), field: value}))
+    with pytest.raises(SystemExit, match=f"{file}.json: " + re.escape(says)):
+        main(["table", str(run), "--out", str(tmp_path / "out")])
+
+
+def test_a_baseline_of_no_finite_time_is_refused(tmp_path):
+    run = fake_run(tmp_path, "sac", "sac", "compound", 0, 90.0)
+    bad = tmp_path / "nan.json"
+    bad.write_text(json.dumps({"time_success_s": {"n": 5, "mean": float("nan"), "std": 1.0}}))
+    with pytest.raises(SystemExit, match="baseline .*nan.json: .*finite"):
         main(["table", str(run), "--out", str(tmp_path / "out"), "--baseline", str(bad)])
 
 

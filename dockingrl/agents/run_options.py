@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from dockingrl.agents.option_fields import check_ranges, documented, refuse
-from dockingrl.env.checks import available_device
+from dockingrl.env.checks import MAX_SEED, available_device
 
 LOGGERS = ("wandb", "csv", "none")
 
@@ -103,6 +103,8 @@ class RunOptions:
             non_negative=("seed", "checkpoint_every", "time_budget_s"),
             flags=("fast_update",),
         )
+        if self.seed > MAX_SEED:
+            refuse(self, "seed", f"must be <= {MAX_SEED}")
         if (
             not isinstance(self.run_name, str)
             or any(c in self.run_name for c in "/\\")

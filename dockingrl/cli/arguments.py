@@ -8,6 +8,8 @@ import argparse
 import math
 from collections.abc import Callable
 
+from dockingrl.env.checks import MAX_SEED
+
 
 class UsageError(ValueError):
     """A command line that cannot run as given (exit status 2); ``prog`` names the command
@@ -26,8 +28,8 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(message, self.prog)
 
 
-def integer(minimum: int) -> Callable[[str], int]:
-    """An argparse type: an integer ``>= minimum``."""
+def integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer ``>= minimum`` (and ``<= maximum`` where given)."""
 
     def parse(text: str) -> int:
         try:
@@ -36,6 +38,8 @@ def integer(minimum: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text!r}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be an integer <= {maximum}, got {text!r}")
         return value
 
     return parse
@@ -60,10 +64,11 @@ def number(*, above: float | None = None, minimum: float | None = None) -> Calla
     return parse
 
 
-#: the usual argparse types: a count of at least 1, a seed or count of at least 0, a finite
+#: the usual argparse types: a count of at least 1, a count of at least 0, a seed, a finite
 #: number, a positive one and a non-negative one
 COUNT = integer(1)
 NON_NEGATIVE_INT = integer(0)
+SEED = integer(0, MAX_SEED)
 FINITE = number()
 POSITIVE = number(above=0.0)
 NON_NEGATIVE = number(minimum=0.0)

@@ -10,8 +10,8 @@ from pathlib import Path
 from dockingrl.cli.arguments import (
     COUNT,
     NON_NEGATIVE,
-    NON_NEGATIVE_INT,
     POSITIVE,
+    SEED,
     UsageError,
     filter_params_file,
     output_folder,
@@ -172,7 +172,7 @@ def add_evaluation_commands(sub) -> None:
         help="default: the agent's training scenario, or 'noise' for the controller",
     )
     ev.add_argument("--episodes", type=COUNT, default=500, help="number of episodes (paper: 500)")
-    ev.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="evaluation seed")
+    ev.add_argument("--seed", type=SEED, default=0, help="evaluation seed")
     ev.add_argument("--out", type=output_folder, default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
     ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")

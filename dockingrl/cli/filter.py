@@ -18,6 +18,7 @@ from dockingrl.cli.arguments import (
     NON_NEGATIVE,
     NON_NEGATIVE_INT,
     POSITIVE,
+    SEED,
     UsageError,
     existing_file,
     integer,
@@ -53,9 +54,7 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         default=d.behaviour,
         help="behaviour policy of the rollouts",
     )
-    parser.add_argument(
-        "--seed", type=NON_NEGATIVE_INT, default=d.seed, help="seed of the training rollouts"
-    )
+    parser.add_argument("--seed", type=SEED, default=d.seed, help="seed of the training rollouts")
     parser.add_argument(
         "--noise-scale",
         type=POSITIVE,
@@ -255,7 +254,7 @@ def add_filter_commands(sub) -> None:
     """Register the filter subcommands on the CLI's subparsers ``sub``."""
     ff = sub.add_parser("filter-figure", help="raw vs filtered vs true observation (Figure 5)")
     ff.add_argument("--out", type=output_folder, default="results/filter", help="results folder")
-    ff.add_argument("--seed", type=NON_NEGATIVE_INT, default=0)
+    ff.add_argument("--seed", type=SEED, default=0)
     ff.add_argument(
         "--start", type=FINITE, nargs=3, default=[-28.0, 5.0, 0.3], metavar=("X", "Y", "ALPHA")
     )

@@ -22,13 +22,14 @@ def cmd_grid(args: argparse.Namespace) -> int:
     grid = select_trials(whole, args.only, args.threads)
     if args.list:
         from dockingrl.grid import finished_trial
+        from dockingrl.grid.folders import success_text
 
         for trial in grid.trials:
             s, refusal = finished_trial(grid, trial)
             if refusal:
                 state = f"finished with another config: {refusal}"
             else:
-                state = f"finished, {s['success_rate']:.1f} %" if s else "not finished"
+                state = f"finished, {success_text(s)}" if s else "not finished"
             print(f"{trial.name:<34} {state}")
         return 0
     states = run_grid(

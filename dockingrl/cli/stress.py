@@ -7,8 +7,8 @@ import time
 
 from dockingrl.cli.arguments import (
     COUNT,
-    NON_NEGATIVE_INT,
     POSITIVE,
+    SEED,
     UsageError,
     output_folder,
     policy_from_args,
@@ -26,7 +26,7 @@ def cmd_stress(args: argparse.Namespace) -> int:
     policy, name, scenario, options, trained = policy_from_args(args)
     if trained:
         options = trained_filter_options(trained, scenario, options)
-    levels = tuple(args.levels.split(",")) if args.levels else tuple(LEVELS)
+    levels = tuple(args.levels.split(",")) if args.levels is not None else tuple(LEVELS)
     unknown = [level for level in levels if level not in LEVELS]
     if unknown:
         raise UsageError(
@@ -75,7 +75,7 @@ def add_stress_command(sub) -> None:
     st.add_argument("--scenario", help="scenario (default: the policy's, or noise)")
     st.add_argument("--episodes", type=COUNT, default=1000, help="episodes a level")
     st.add_argument("--levels", help=f"comma-separated levels (default: {','.join(LEVELS)})")
-    st.add_argument("--seed", type=NON_NEGATIVE_INT, default=0)
+    st.add_argument("--seed", type=SEED, default=0)
     st.add_argument("--gate", type=POSITIVE, default=None, help="EKF chi-square gate (13.8)")
     st.add_argument(
         "--compensate-latency",

@@ -1,5 +1,6 @@
 """The checks of :class:`~dockingrl.env.DockingEnv`'s inputs and, in debug mode, outputs: an
-action's type, shape and finiteness, and NaN or inf in what a reset or step gives."""
+action's type, shape and finiteness, a seed's range, and NaN or inf in what a reset or step
+gives."""
 
 from __future__ import annotations
 
@@ -7,6 +8,21 @@ import torch
 
 from dockingrl.env.dynamics import clip_action
 from dockingrl.env.specs import ACTION_DIM
+
+#: the largest seed a user gives (``--seed``, a config's ``seed``): every seed derived from it
+#: (evaluation episodes, the realism draws) still fits the envs' 64-bit generators
+MAX_SEED = 2**32 - 1
+
+
+def checked_seed(seed) -> int:
+    """``seed`` as an int, refused (one line) unless it is an integer in ``[0, 2**63)``, the
+    range of the envs' generators."""
+    if isinstance(seed, bool) or not isinstance(seed, int) and not hasattr(seed, "__index__"):
+        raise TypeError(f"seed must be an integer, got {type(seed).__name__}")
+    seed = int(seed)
+    if not 0 <= seed < 2**63:
+        raise ValueError(f"seed must be an integer in [0, 2**63), got {seed}")
+    return seed
 
 
 def validated_action(

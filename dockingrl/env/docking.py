@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
-from dockingrl.env.checks import check_finite, validated_action
+from dockingrl.env.checks import check_finite, checked_seed, validated_action
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.dynamics import noisy_observation, observation_from_state
 from dockingrl.env.realism_env import RealismMixin
@@ -202,10 +202,11 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         if seed is None:
             return
+        seed = checked_seed(seed)
         self.rng = torch.Generator(device=self.device)
-        self.rng.manual_seed(int(seed))
+        self.rng.manual_seed(seed)
         self.realism_rng = torch.Generator(device=self.device)
-        self.realism_rng.manual_seed((int(seed) + REALISM_SEED_OFFSET) % 2**63)
+        self.realism_rng.manual_seed((seed + REALISM_SEED_OFFSET) % 2**63)
 
     def set_initial_state(
         self, pose: torch.Tensor | None = None, ocean_current: torch.Tensor | None = None

@@ -92,7 +92,7 @@ def _mapping(value, where: str) -> dict:
     """``value`` if it is a mapping of field names (None: an empty one), else a ValueError."""
     if value is None:
         return {}
-    if not isinstance(value, dict):
+    if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
         raise ValueError(f"{where} must be a mapping of config fields (got {value!r})")
     return value
 
@@ -131,7 +131,10 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
     if spec in grid_names():
         text = resources.files("dockingrl.grids").joinpath(f"{spec}.yaml").read_text()
     elif Path(spec).is_file():
-        text = Path(spec).read_text()
+        try:
+            text = Path(spec).read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"grid {spec}: not a readable text file ({exc})") from None
     else:
         raise ValueError(
             f"unknown grid {spec!r}: neither a grid name ({', '.join(grid_names())}) nor a file"
@@ -145,8 +148,11 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
     extra = sorted(set(data) - set(_GRID_KEYS))
     if extra:
         raise ValueError(f"grid {spec}: unknown key(s) {', '.join(map(str, extra))}")
+    for key in ("name", "out", "collect"):
+        if data.get(key) is not None and not isinstance(data[key], str):
+            raise ValueError(f"grid {spec}: {key} must be a string (got {data[key]!r})")
     threads = data.get("threads", 1)
-    if not isinstance(threads, int) or threads < 1:
+    if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
         raise ValueError(f"grid {spec}: threads must be an integer >= 1 (got {threads!r})")
     base = _mapping(data.get("overrides"), f"grid {spec}: overrides")
     trials: list[tuple[int, int, Trial]] = []
@@ -170,8 +176,12 @@ def load_grid(spec: str | Path, out: str | Path | None = None, collect: str | No
         ):
             raise ValueError(f"{where}: seeds must be a list of integers >= 0 (got {seeds!r})")
         estimate = group.get("estimate_s", 0.0)
-        if isinstance(estimate, bool) or not isinstance(estimate, (int, float)) or estimate < 0:
-            raise ValueError(f"{where}: estimate_s must be a number >= 0 (got {estimate!r})")
+        if (
+            isinstance(estimate, bool)
+            or not isinstance(estimate, (int, float))
+            or not 0 <= estimate < float("inf")
+        ):
+            raise ValueError(f"{where}: estimate_s must be a finite number >= 0 (got {estimate!r})")
         overrides = {**base, **_mapping(group.get("overrides"), f"{where}: overrides")}
         if isinstance(overrides.get("init_from"), str) and overrides["init_from"]:
             # a run folder named from where the grid runs, wherever its trials' processes run

@@ -17,10 +17,13 @@ COLLECTED = ("config.json", "summary.json", "eval.json", "curves.csv", "policy.p
 
 
 def read_json(path: Path) -> dict | None:
+    """The JSON object in ``path``; None where the file is missing, damaged (a torn write) or
+    holds something else than an object."""
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
+    return data if isinstance(data, dict) else None
 
 
 def finished_trial(grid: Grid, trial: Trial) -> tuple[dict | None, str]:
@@ -39,6 +42,14 @@ def finished_summary(grid: Grid, trial: Trial) -> dict | None:
     """The ``summary.json`` of the trial if it finished with the grid's config."""
     summary, refusal = finished_trial(grid, trial)
     return None if refusal else summary
+
+
+def success_text(summary: dict) -> str:
+    """``"success 98.2 %"`` from a trial's summary, ``"success unknown"`` where it holds no
+    number."""
+    rate = summary.get("success_rate")
+    ok = isinstance(rate, (int, float)) and not isinstance(rate, bool)
+    return f"success {rate:.1f} %" if ok else "success unknown"
 
 
 def saved_config_differs(grid: Grid, trial: Trial, folder: Path) -> list[str]:

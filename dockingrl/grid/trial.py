@@ -38,6 +38,11 @@ def run_trial(trial: Trial, out: str, threads: int) -> dict:
                         if changed:
                             raise ValueError(another_config(run_dir, changed))
                     if (run_dir / "summary.json").exists():
+                        if read_json(run_dir / "summary.json") is None:
+                            raise ValueError(
+                                f"{run_dir / 'summary.json'}: damaged (not a JSON object); "
+                                "remove it to finish the trial again from its checkpoint"
+                            )
                         return result
                     if saved is not None:
                         train(

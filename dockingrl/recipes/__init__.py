@@ -119,7 +119,7 @@ def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
             )
         data.setdefault("algo", base.algo)
     algo = data.get("algo")
-    if algo not in CONFIGS:
+    if not isinstance(algo, str) or algo not in CONFIGS:
         raise ValueError(f"recipe {spec}: algo must be one of {', '.join(CONFIGS)} (got {algo!r})")
     config = data.get("config") or {}
     if not isinstance(config, dict):

@@ -18,6 +18,7 @@ import numpy as np
 
 from dockingrl.evaluation import PAPER_RESULTS
 from dockingrl.io import atomic_write, write_json
+from dockingrl.table.checks import field_problem
 from dockingrl.table.claims import (
     claims,
     faster_than_baseline,
@@ -58,6 +59,8 @@ def _read(run_dir: Path) -> dict | None:
         missing = [k for k in keys if not isinstance(value, dict) or k not in value]
         if missing:
             raise ValueError(f"{path}: not a run's {name} (no {', '.join(missing)})")
+        if problem := field_problem(name, value):
+            raise ValueError(f"{path}: {problem}")
         run[name] = value
     curves: dict[str, list[tuple[int, float]]] = {}
     path = run_dir / "curves.csv"

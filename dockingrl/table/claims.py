@@ -167,6 +167,8 @@ def read_baseline(path: Path) -> dict:
         time = base["time_success_s"]
         if not all(isinstance(time[k], (int, float)) for k in ("n", "mean", "std")):
             raise TypeError("time_s n, mean and std must be numbers")
+        if not (time["n"] >= 0 and math.isfinite(time["mean"]) and math.isfinite(time["std"])):
+            raise TypeError("time_s n must be >= 0, its mean and std finite")
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise ValueError(
             f"baseline {path}: not an evaluation's eval.json with time_success_s ({e})"
