@@ -17,7 +17,7 @@ def _train_or_resume(cfg, run_dir: Path, command: str) -> dict:
 
     if not (run_dir / "config.json").exists():
         return train(cfg, progress=False, command=command)
-    saved = json.loads((run_dir / "config.json").read_text())
+    saved = _run_file(run_dir / "config.json", ())
     differ = saved_differs(saved, cfg)
     if differ:
         raise ValueError(
@@ -25,10 +25,35 @@ def _train_or_resume(cfg, run_dir: Path, command: str) -> dict:
             "remove it or give another --runs folder"
         )
     if (run_dir / "summary.json").exists() and (run_dir / "eval.json").exists():
-        return {
-            name: json.loads((run_dir / f"{name}.json").read_text()) for name in ("summary", "eval")
-        } | {"run_dir": str(run_dir)}
+        return {name: _run_file(run_dir / f"{name}.json", keys) for name, keys in _READ} | {
+            "run_dir": str(run_dir)
+        }
     return train(None, resume=run_dir, progress=False, command=command)
+
+
+#: what the comparison reads of a finished run's summary and final evaluation
+_READ = (
+    ("summary", ("train_wall_clock_s", "frames", "machine")),
+    ("eval", ("success_rate", "total_reward", "time_s", "failures")),
+)
+
+
+def _run_file(path: Path, keys: tuple[str, ...]) -> dict:
+    """The JSON object of a run's file, with ``keys``; else a one-line ``ValueError`` naming
+    it."""
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(
+            f"{path}: damaged ({exc}); remove the run folder to train it again"
+        ) from None
+    missing = [k for k in keys if not isinstance(value, dict) or k not in value]
+    if not isinstance(value, dict) or missing:
+        raise ValueError(
+            f"{path}: not a finished run's file (no {', '.join(missing) or 'JSON object'}); "
+            "remove the run folder to train it again"
+        )
+    return value
 
 
 def ppo_filter_comparison(

@@ -282,6 +282,8 @@ def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, ca
         )
     line = fails(capsys, ["eval", "--out", str(afile / "sub"), "--quiet"], 2)
     assert f"({afile} is a file)" in line
+    line = fails(capsys, ["eval", "--video", str(afile / "v.gif"), "--quiet"], 2)
+    assert f"--video {afile / 'v.gif'}: cannot be written ({afile} is a file)" in line
 
 
 @pytest.mark.parametrize(

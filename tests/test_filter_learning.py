@@ -242,6 +242,15 @@ def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path)
     assert json.loads((tmp_path / "res" / "ppo_mismatch.json").read_text()) == report
     with pytest.raises(SystemExit, match="holds a run of another config \\(epochs differ\\)"):
         cli_main(argv + ["--set", *tiny[:3], "epochs=2", *tiny[4:]])
+    with pytest.raises(SystemExit, match="--seeds 0 0: a seed is named twice"):
+        cli_main(argv[:-2] + ["0", "0", "--set", *tiny])
+    summary = tmp_path / "runs" / "ppo_mismatch_learned_s1" / "summary.json"
+    summary.write_text("{}")  # a finished run's file emptied: named, not a KeyError
+    with pytest.raises(SystemExit, match="learned_s1/summary.json: not a finished run's file"):
+        cli_main(argv + ["--set", *tiny])
+    (summary.parent / "config.json").write_text('{"algo": "pp')  # torn
+    with pytest.raises(SystemExit, match="learned_s1/config.json: damaged"):
+        cli_main(argv + ["--set", *tiny])
     junk = tmp_path / "junk.pt"
     junk.write_text("not a filter")
     with pytest.raises(ValueError, match="junk.pt"):

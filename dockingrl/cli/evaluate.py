@@ -58,6 +58,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
         if Path(args.video).suffix.lower() not in VIDEO_SUFFIXES:
             raise UsageError(f"--video {args.video}: the suffix must be one of .gif, .mp4")
+        _refuse_file_under_a_file("--video", Path(args.video))
     start = time.perf_counter()
     metrics = evaluate(
         policy,
@@ -129,6 +130,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refuse_file_under_a_file(option: str, path: Path) -> None:
+    """Refuse up front, not after the work, a file to write whose folder is a file."""
+    from dockingrl.io import file_in_the_way
+
+    blocker = file_in_the_way(path.parent)
+    if blocker is not None:
+        raise UsageError(f"{option} {path}: cannot be written ({blocker} is a file)")
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     """``dockingrl export``: a policy and its filter as a torch.export program."""
     from dockingrl.onboard import OnboardPolicy, export_onboard
@@ -142,6 +152,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         )
     if out.suffix != ".pt2":
         raise UsageError(f"--out {out}: a torch.export program's file ends in .pt2")
+    _refuse_file_under_a_file("--out", out)
     policy = OnboardPolicy.from_file(args.policy, filter_params=args.filter_params)
     path = export_onboard(policy, args.out, batch=args.batch)
     print(

@@ -16,7 +16,6 @@ from dockingrl.cli.arguments import (
     COUNT,
     FINITE,
     NON_NEGATIVE,
-    NON_NEGATIVE_INT,
     POSITIVE,
     SEED,
     UsageError,
@@ -334,7 +333,7 @@ def add_filter_commands(sub) -> None:
     pc.add_argument("--runs", default="runs", help="folder of the training runs")
     pc.add_argument(
         "--seeds",
-        type=NON_NEGATIVE_INT,
+        type=SEED,
         nargs="+",
         default=[0],
         help="training seeds (one agent each)",
@@ -355,6 +354,8 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     500-episode evaluations (``ppo_mismatch.{json,md}``)."""
     from dockingrl.agents.config import parse_overrides
 
+    if len(set(args.seeds)) < len(args.seeds):
+        raise UsageError(f"--seeds {' '.join(map(str, args.seeds))}: a seed is named twice")
     fixed = {"scenario", "total_steps", "range_noise_scale", "bearing_noise_scale"}
     fixed |= {"filter_params", "out", "run_name", "logger", "seed"}
     try:
