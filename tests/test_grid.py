@@ -113,7 +113,7 @@ def test_damaged_trial_files_are_neither_finished_nor_a_traceback(tmp_path, caps
     (listed / "summary.json").write_text(json.dumps({"success_rate": "high"}))
     assert main(["grid", str(write_grid(tmp_path, seeds=(0, 1))), "--list"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0].endswith("not finished") and out[1].endswith("finished, success unknown")
+    assert out[0].endswith("not finished") and out[1].endswith("finished, unknown")
 
 
 def test_a_trial_of_another_config_is_named():

@@ -29,7 +29,9 @@ def cmd_grid(args: argparse.Namespace) -> int:
             if refusal:
                 state = f"finished with another config: {refusal}"
             else:
-                state = f"finished, {success_text(s)}" if s else "not finished"
+                state = (
+                    f"finished, {success_text(s).removeprefix('success ')}" if s else "not finished"
+                )
             print(f"{trial.name:<34} {state}")
         return 0
     states = run_grid(
