@@ -47,10 +47,13 @@ def _run_file(path: Path, keys: tuple[str, ...]) -> dict:
         raise ValueError(
             f"{path}: damaged ({exc}); remove the run folder to train it again"
         ) from None
-    missing = [k for k in keys if not isinstance(value, dict) or k not in value]
-    if not isinstance(value, dict) or missing:
+    if not isinstance(value, dict):
+        missing = ["JSON object"]
+    else:
+        missing = [k for k in keys if k not in value]
+    if missing:
         raise ValueError(
-            f"{path}: not a finished run's file (no {', '.join(missing) or 'JSON object'}); "
+            f"{path}: not a finished run's file (no {', '.join(missing)}); "
             "remove the run folder to train it again"
         )
     return value

@@ -290,18 +290,11 @@ class OnboardPolicy(nn.Module):
             self._state = None
             return
         mean, cov, command, age, *history = self._state
-        if (
-            not isinstance(mask, torch.Tensor)
-            or mask.dtype != torch.bool
-            or mask.shape != (age.shape[0],)
-        ):
+        is_tensor = isinstance(mask, torch.Tensor)
+        if not is_tensor or mask.dtype != torch.bool or mask.shape != (age.shape[0],):
+            got = f"{mask.dtype} {tuple(mask.shape)}" if is_tensor else type(mask).__name__
             raise ValueError(
-                f"mask must be a bool tensor of shape ({age.shape[0]},), one per vehicle, got "
-                + (
-                    f"{mask.dtype} {tuple(mask.shape)}"
-                    if isinstance(mask, torch.Tensor)
-                    else type(mask).__name__
-                )
+                f"mask must be a bool tensor of shape ({age.shape[0]},), one per vehicle, got {got}"
             )
         self._state = (mean, cov, command, torch.where(mask.view(-1, 1), -1.0, age), *history)
 

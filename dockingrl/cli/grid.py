@@ -22,16 +22,16 @@ def cmd_grid(args: argparse.Namespace) -> int:
     grid = select_trials(whole, args.only, args.threads)
     if args.list:
         from dockingrl.grid import finished_trial
-        from dockingrl.grid.folders import success_text
+        from dockingrl.grid.folders import success_rate_text
 
         for trial in grid.trials:
             s, refusal = finished_trial(grid, trial)
             if refusal:
                 state = f"finished with another config: {refusal}"
+            elif s:
+                state = f"finished, {success_rate_text(s)}"
             else:
-                state = (
-                    f"finished, {success_text(s).removeprefix('success ')}" if s else "not finished"
-                )
+                state = "not finished"
             print(f"{trial.name:<34} {state}")
         return 0
     states = run_grid(

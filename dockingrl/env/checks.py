@@ -4,6 +4,8 @@ gives."""
 
 from __future__ import annotations
 
+import operator
+
 import torch
 
 from dockingrl.env.dynamics import clip_action
@@ -17,12 +19,15 @@ MAX_SEED = 2**32 - 1
 def checked_seed(seed) -> int:
     """``seed`` as an int, refused (one line) unless it is an integer in ``[0, 2**63)``, the
     range of the envs' generators."""
-    if isinstance(seed, bool) or not isinstance(seed, int) and not hasattr(seed, "__index__"):
+    try:
+        value = None if isinstance(seed, bool) else operator.index(seed)
+    except TypeError:
+        value = None
+    if value is None:
         raise TypeError(f"seed must be an integer, got {type(seed).__name__}")
-    seed = int(seed)
-    if not 0 <= seed < 2**63:
-        raise ValueError(f"seed must be an integer in [0, 2**63), got {seed}")
-    return seed
+    if not 0 <= value < 2**63:
+        raise ValueError(f"seed must be an integer in [0, 2**63), got {value}")
+    return value
 
 
 def validated_action(

@@ -17,7 +17,7 @@ from dockingrl.grid.folders import (
     collect_trial,
     finished_summary,
     finished_trial,
-    success_text,
+    success_rate_text,
 )
 from dockingrl.grid.trial import run_trial
 from dockingrl.grid.view import GridView
@@ -206,7 +206,7 @@ def run_grid(
                         collect_trial(grid.run_dir(r.trial), grid.collect / r.trial.name)
                     s = finished_summary(grid, r.trial) or {}
                     summaries[r.trial.name] = s
-                    notes[r.trial.name] = success_text(s)
+                    notes[r.trial.name] = f"success {success_rate_text(s)}"
                 else:
                     notes[r.trial.name] = result["error"].splitlines()[0][:160]
                 view.show(states, running, notes, force=True)

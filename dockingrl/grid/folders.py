@@ -44,12 +44,11 @@ def finished_summary(grid: Grid, trial: Trial) -> dict | None:
     return None if refusal else summary
 
 
-def success_text(summary: dict) -> str:
-    """``"success 98.2 %"`` from a trial's summary, ``"success unknown"`` where it holds no
-    number."""
+def success_rate_text(summary: dict) -> str:
+    """``"98.2 %"`` from a trial's summary, ``"unknown"`` where it holds no number."""
     rate = summary.get("success_rate")
     ok = isinstance(rate, (int, float)) and not isinstance(rate, bool)
-    return f"success {rate:.1f} %" if ok else "success unknown"
+    return f"{rate:.1f} %" if ok else "unknown"
 
 
 def saved_config_differs(grid: Grid, trial: Trial, folder: Path) -> list[str]:
