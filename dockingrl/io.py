@@ -267,9 +267,14 @@ def _unpickle(path: Path, data: bytes, what: str) -> dict:
 
 
 def first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
+    """``exc``'s message on one line: its first line, and the next where the first ends with
+    a colon (torch's ``Error(s) in loading state_dict for X:`` then what differs), at most 200
+    characters."""
+    text = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
     line = text[0] if text else type(exc).__name__
-    return line if len(line) <= 160 else line[:157] + "..."
+    if line.endswith(":") and len(text) > 1:
+        line += " " + text[1]
+    return line if len(line) <= 200 else line[:197] + "..."
 
 
 def require_keys(path: str | Path, payload: Mapping, what: str, keys: Iterable[str]) -> None:

@@ -204,6 +204,13 @@ def policy_payload(tmp_path):
     return read_policy(tmp_path / "good.pt")
 
 
+def narrow_filter(folder):
+    """The payload of a learned filter whose ``R`` has two entries, not six."""
+    learned_filter(folder / "f.pt")
+    payload = read_filter_params(folder / "f.pt")
+    return {**payload, "measurement_noise": {"log_std": torch.zeros(2)}}
+
+
 BAD_POLICIES = {
     "directory": (lambda p, payload: p.mkdir(), "is a directory"),
     "empty": (lambda p, payload: p.write_bytes(b""), "is empty"),
@@ -231,8 +238,63 @@ BAD_POLICIES = {
         "config fields unknown to dockingrl's ppo: warp_drive",
     ),
     "weights of another shape": (
-        lambda p, payload: save_artifact(p, {**payload, "obs_dim": 7}),
-        "does not rebuild a ppo actor",
+        lambda p, payload: save_artifact(
+            p,
+            {
+                **payload,
+                "obs_dim": 7,
+                "observation_layout": {**payload["observation_layout"], "obs_dim": 7},
+            },
+        ),
+        "does not rebuild a ppo actor (Error(s) in loading state_dict for ProbabilisticActor: "
+        "size mismatch",
+    ),
+    # hand-edited payloads re-saved whole: refused as training would refuse them
+    "config field of the wrong type": (
+        lambda p, payload: save_artifact(
+            p, {**payload, "config": {**payload["config"], "filter_gate": "abc"}}
+        ),
+        "its config: ppo option filter_gate: expected <class 'float'>, got 'abc'",
+    ),
+    "config field out of its range": (
+        lambda p, payload: save_artifact(
+            p, {**payload, "config": {**payload["config"], "action_repeat": 0}}
+        ),
+        "its config: PPOConfig.action_repeat",
+    ),
+    "config of another algorithm": (
+        lambda p, payload: save_artifact(
+            p, {**payload, "config": {**payload["config"], "algo": "sac"}}
+        ),
+        "its config: algo 'sac' is not the file's 'ppo'",
+    ),
+    "obs_dim not a count": (
+        lambda p, payload: save_artifact(p, {**payload, "obs_dim": 7.5}),
+        "obs_dim must be a whole number > 0 (got 7.5)",
+    ),
+    "metadata not a dict": (
+        lambda p, payload: save_artifact(p, {**payload, "metadata": [1]}),
+        "metadata must be a dict (got [1])",
+    ),
+    "layout another config's": (
+        lambda p, payload: save_artifact(
+            p,
+            {
+                **payload,
+                "observation_layout": {**payload["observation_layout"], "keys": [1, 2]},
+            },
+        ),
+        "observation_layout keys is [1, 2], not the ['observation', 'filtered_observation'] its "
+        "config gives",
+    ),
+    "carried filter not a dict": (
+        lambda p, payload: save_artifact(p, {**payload, "filter_params": "f.pt"}),
+        "filter_params must be a dict or None (got 'f.pt')",
+    ),
+    "carried filter of another shape": (
+        lambda p, payload: save_artifact(p, {**payload, "filter_params": narrow_filter(p.parent)}),
+        "the filter it carries: do not fit the EKF (Error(s) in loading state_dict for "
+        "MeasurementNoise: size mismatch for log_std",
     ),
     "another kind of file": (
         lambda p, payload: save_artifact(p, {**payload, "format": "dockingrl.checkpoint/2"}),
@@ -271,7 +333,7 @@ BAD_POLICIES = {
     ),
     "no layout": (
         lambda p, payload: save_artifact(p, {**payload, "observation_layout": None}),
-        "observation_layout must be a dict",
+        "observation_layout must be a dict (got None)",
     ),
 }
 
@@ -353,6 +415,31 @@ def test_old_filter_files_are_refused_then_upgraded_to_the_same_q(tmp_path, fmt)
     ekf = EKFTransform().load_filter_params(path)
     torch.testing.assert_close(ekf.process_noise(), L @ L.T + 1e-10 * torch.eye(5))
     assert ekf.range_noise_from == "measurement" and ekf.noise_context is None
+
+
+def test_upgrade_leaves_an_old_filter_that_does_not_fit_the_ekf_as_it_was(tmp_path, capsys):
+    # older formats do not say which filter they were for: what fits is checked before writing
+    old = {
+        "format": "dockingrl.filter_params/4",
+        "process_noise": {"log_diag": torch.zeros(3), "off_diag": torch.zeros(3)},
+        "measurement_noise": {"log_std": torch.zeros(6)},
+    }
+    torch.save(old, tmp_path / "old.pt")
+    before = (tmp_path / "old.pt").read_bytes()
+    assert run(tmp_path / "old.pt") == 1
+    err = capsys.readouterr().err
+    assert "old.pt: not converted, its parameters: do not fit the EKF" in err
+    assert "size mismatch for log_diag" in err
+    assert (tmp_path / "old.pt").read_bytes() == before
+    # the same filter carried by an old policy file
+    saved_policy(tmp_path / "p.pt")
+    policy = {**read_policy(tmp_path / "p.pt"), "format": "dockingrl.policy/1"}
+    del policy["observation_layout"]
+    torch.save({**policy, "filter_params": old}, tmp_path / "p.pt")
+    before = (tmp_path / "p.pt").read_bytes()
+    assert run(tmp_path / "p.pt") == 1
+    assert "p.pt: the filter it carries: do not fit the EKF" in capsys.readouterr().err
+    assert (tmp_path / "p.pt").read_bytes() == before
 
 
 def test_a_filter_file_round_trips(tmp_path):

@@ -117,19 +117,34 @@ def save_policy(
 
 def read_policy(path: str | Path) -> dict:
     """The payload of a policy file written by :func:`save_policy`, checked: format, hash,
-    keys, a known algorithm and scenario, config fields that algorithm's config has. Raises
-    :class:`~dockingrl.io.ArtifactError`."""
+    keys, a known algorithm and scenario, a config its algorithm's config accepts (field
+    types and ranges), the observation layout that config gives, and the learned filter it
+    carries fitting the EKF. Raises :class:`~dockingrl.io.ArtifactError` naming the file."""
     from dockingrl.agents.config import CONFIGS
 
     payload = read_artifact(path, WHAT, FORMAT, OLD_FORMATS)
     require_keys(path, payload, WHAT, KEYS)
     _check_payload(path, payload, CONFIGS)
     layout = payload["observation_layout"]
-    if not isinstance(layout, dict) or not {"keys", "obs_dim", "action_repeat"} <= set(layout):
-        raise ArtifactError(
-            f"{path}: observation_layout must be a dict of keys, obs_dim and action_repeat"
-        )
+    expected = policy_layout(payload["scenario"], payload["obs_dim"], payload["config"])
+    if not isinstance(layout, dict):
+        raise ArtifactError(f"{path}: observation_layout must be a dict (got {layout!r:.60})")
+    for key in [*expected, *sorted(set(layout) - set(expected), key=str)]:
+        if layout.get(key) != expected.get(key):
+            raise ArtifactError(
+                f"{path}: observation_layout {key} is {layout.get(key)!r:.80}, not the "
+                f"{expected.get(key)!r:.80} its config gives"
+            )
+    _check_carried_filter(path, payload)
     return payload
+
+
+def _check_carried_filter(path, payload: dict) -> None:
+    """Refuse a policy whose carried learned filter does not load into the EKF."""
+    from dockingrl.transforms.params import check_fits
+
+    if payload["filter_params"] is not None:
+        check_fits(payload["filter_params"], f"{path}: the filter it carries")
 
 
 def _check_payload(path, payload: dict, configs: Mapping) -> None:
@@ -139,13 +154,18 @@ def _check_payload(path, payload: dict, configs: Mapping) -> None:
         raise ArtifactError(f"{path}: unknown algorithm {algo!r} (known: {', '.join(configs)})")
     if not isinstance(payload["scenario"], str) or payload["scenario"] not in SCENARIOS:
         raise ArtifactError(f"{path}: unknown scenario {payload['scenario']!r}")
-    if not isinstance(config, dict) or not isinstance(payload["state_dict"], dict):
-        raise ArtifactError(f"{path}: its config and state_dict must be dicts")
+    for key in ("config", "state_dict", "metadata"):
+        if not isinstance(payload[key], dict):
+            raise ArtifactError(f"{path}: {key} must be a dict (got {payload[key]!r:.60})")
     extra = sorted(set(config) - {f.name for f in fields(configs[algo])})
     if extra:
         raise ArtifactError(
             f"{path}: config fields unknown to dockingrl's {algo}: {', '.join(extra)}"
         )
+    _check_config(path, algo, config)
+    obs_dim = payload["obs_dim"]
+    if isinstance(obs_dim, bool) or not isinstance(obs_dim, int) or not 0 < obs_dim < 2**16:
+        raise ArtifactError(f"{path}: obs_dim must be a whole number > 0 (got {obs_dim!r:.60})")
     require_finite(path, "state_dict", payload["state_dict"])
     low, high, max_dist = payload["action_low"], payload["action_high"], payload["max_dist"]
     try:
@@ -164,6 +184,28 @@ def _check_payload(path, payload: dict, configs: Mapping) -> None:
         or not 0 < max_dist < inf
     ):
         raise ArtifactError(f"{path}: max_dist must be a finite number > 0 (got {max_dist!r})")
+    carried = payload["filter_params"]
+    if carried is not None and not isinstance(carried, dict):
+        raise ArtifactError(f"{path}: filter_params must be a dict or None (got {carried!r:.60})")
+
+
+def _check_config(path, algo: str, config: dict) -> None:
+    """Refuse (one line naming ``path``) a saved config whose fields have the wrong type or
+    lie out of their range, as training would have refused them."""
+    from dockingrl.agents.config import CONFIGS, check_types
+
+    values = {k: v for k, v in config.items() if k not in ("algo", "recipe")}
+    try:
+        if config.get("algo", algo) != algo:
+            raise ValueError(f"algo {config['algo']!r} is not the file's {algo!r}")
+        if not isinstance(config.get("recipe", ""), str):
+            raise ValueError(f"recipe must be a name (got {config['recipe']!r})")
+        check_types(algo, values)
+        if "hidden" in values:
+            values["hidden"] = tuple(values["hidden"])
+        CONFIGS[algo](**values).validate()
+    except ValueError as exc:
+        raise ArtifactError(f"{path}: its config: {first_line(exc)}") from None
 
 
 def load_policy(path: str | Path, device: torch.device | str = "cpu"):
@@ -263,6 +305,7 @@ def upgrade_policy(path: str | Path) -> str:
     carried = payload["filter_params"]
     if carried is not None and carried.get("format") != FILTER_FORMAT:
         payload["filter_params"] = upgrade_payload(carried)
+    _check_carried_filter(path, payload)
     layout = policy_layout(payload["scenario"], payload["obs_dim"], payload["config"])
     numbers = observation_size(layout["keys"])
     if numbers != layout["obs_dim"]:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Self
 
 import torch
 from tensordict import TensorDictBase
@@ -32,6 +34,7 @@ from dockingrl.transforms.noise import (
     NoiseParameters,
     ProcessNoise,
 )
+from dockingrl.transforms.params import load_filter_params, save_filter_params
 
 
 def arrived_readings(sensor_age: torch.Tensor | None) -> torch.Tensor | None:
@@ -176,6 +179,16 @@ class EKFTransform(NoiseParameters, Transform):
         self.register_buffer("action_bounds", bounds)
         if compile:
             self.filter_step = torch.compile(self.filter_step, dynamic=False)
+
+    def save_filter_params(self, path: str | Path) -> None:
+        """Write ``Q`` and ``R``'s parameters to ``path`` (atomically)."""
+        save_filter_params(self, path)
+
+    def load_filter_params(self, source) -> Self:
+        """Load ``Q`` and ``R``'s parameters written by :meth:`save_filter_params`: a file's
+        path, or its payload (:func:`~dockingrl.transforms.params.read_filter_params`)."""
+        load_filter_params(self, source)
+        return self
 
     # -- filtering ------------------------------------------------------------------------
     def _applied_action(self, action: torch.Tensor) -> torch.Tensor:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Self
 
 import torch
@@ -200,8 +199,9 @@ RANGE_NOISE_FROM = ("measurement", "estimate")
 class NoiseParameters:
     """The noise models of an EKF as its transform holds them (``process_noise``,
     ``measurement_noise``, ``noise_context`` and ``range_noise_from``): their parameters,
-    frozen or learned, saved and loaded, and the ``Q`` and ``R`` of a step.
-    :class:`~dockingrl.transforms.filtering.EKFTransform` is one."""
+    frozen or learned, and the ``Q`` and ``R`` of a step.
+    :class:`~dockingrl.transforms.filtering.EKFTransform` is one, and saves and loads them
+    (:mod:`dockingrl.transforms.params`)."""
 
     process_noise: ProcessNoise
     measurement_noise: MeasurementNoise
@@ -265,17 +265,3 @@ class NoiseParameters:
             Q = Q * half.unsqueeze(-1) * half.unsqueeze(-2)
             R = R * torch.exp(r_log)
         return Q, R
-
-    def save_filter_params(self, path: str | Path) -> None:
-        """Write ``Q`` and ``R``'s parameters to ``path`` (atomically)."""
-        from dockingrl.transforms.params import save_filter_params
-
-        save_filter_params(self, path)
-
-    def load_filter_params(self, source) -> Self:
-        """Load ``Q`` and ``R``'s parameters written by :meth:`save_filter_params`: a file's
-        path, or its payload (:func:`~dockingrl.transforms.params.read_filter_params`)."""
-        from dockingrl.transforms.params import load_filter_params
-
-        load_filter_params(self, source)
-        return self

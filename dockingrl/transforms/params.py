@@ -17,6 +17,7 @@ from dockingrl.io import (
     require_keys,
     save_artifact,
 )
+from dockingrl.transforms.noise import MeasurementNoise, NoiseParameters, ProcessNoise
 
 FORMAT = "dockingrl.filter_params/5"
 #: version 1 stored ``Q``'s Cholesky factor with absolute off-diagonal entries
@@ -63,24 +64,25 @@ def read_filter_params(path: str | Path) -> dict:
     return payload
 
 
-def load_filter_params(transform, source: str | Path | Mapping) -> dict:
+def load_filter_params(transform, source: str | Path | Mapping, *, name: str | None = None) -> dict:
     """Load parameters written by :func:`save_filter_params` into ``transform``, from the file
     ``source`` or from its payload already read (:func:`read_filter_params`, or the copy a saved
-    policy carries); returns the payload."""
+    policy carries; ``name`` says where it came from in errors); returns the payload."""
     if isinstance(source, Mapping):
+        name = name or "filter parameters"
         payload = dict(source)
         found = payload.get("format")
         if found in OLD_FORMATS:
             raise ArtifactError(
-                f"filter parameters of the older format {found}; convert the file that holds "
-                f"them once with: {UPGRADE_COMMAND} PATH"
+                f"{name}: of the older format {found}; convert the file that holds them once "
+                f"with: {UPGRADE_COMMAND} PATH"
             )
         if found != FORMAT:
-            raise ArtifactError(f"not dockingrl filter parameters ({FORMAT}): format {found!r}")
-        require_keys("filter parameters", payload, WHAT, KEYS)
+            raise ArtifactError(f"{name}: not dockingrl filter parameters ({FORMAT}): {found!r}")
+        require_keys(name, payload, WHAT, KEYS)
     else:
         payload = read_filter_params(source)
-    name = source if not isinstance(source, Mapping) else "filter parameters"
+        name = name or str(source)
     for key in ("process_noise", "measurement_noise", "noise_context"):
         require_finite(name, key, payload[key])
     try:
@@ -92,7 +94,7 @@ def load_filter_params(transform, source: str | Path | Mapping) -> dict:
         transform.set_context_noise(context is not None)
         if context is not None:
             transform.noise_context.load_state_dict(context)
-    except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+    except (AttributeError, KeyError, RuntimeError, TypeError, ValueError) as exc:
         raise ArtifactError(f"{name}: do not fit the EKF ({first_line(exc)})") from None
     return payload
 
@@ -127,5 +129,17 @@ def upgrade_filter_params(path: str | Path) -> str:
         return f"{path}: already {FORMAT}"
     found = payload["format"]
     require_keys(path, payload, WHAT, ("process_noise", "measurement_noise"))
-    save_artifact(path, upgrade_payload(payload))
+    payload = upgrade_payload(payload)
+    check_fits(payload, f"{path}: not converted, its parameters")
+    save_artifact(path, payload)
     return f"{path}: {found} -> {FORMAT}"
+
+
+def check_fits(payload: Mapping, name: str) -> None:
+    """Raise :class:`~dockingrl.io.ArtifactError` (its line starting with ``name``) unless the
+    filter parameters ``payload`` (of the current format) load into the EKF: what an upgrade
+    checks before it writes, as older formats do not say which filter they were for."""
+    holder = NoiseParameters()
+    holder.process_noise, holder.measurement_noise = ProcessNoise(), MeasurementNoise()
+    holder.noise_context, holder.range_noise_from = None, "measurement"
+    load_filter_params(holder, payload, name=name)
