@@ -129,11 +129,20 @@ def test_a_run_file_field_the_table_cannot_use_is_one_line_naming_it(
         main(["table", str(run), "--out", str(tmp_path / "out")])
 
 
-def test_a_baseline_of_no_finite_time_is_refused(tmp_path):
+@pytest.mark.parametrize(
+    "time",
+    [
+        {"n": 5, "mean": float("nan"), "std": 1.0},
+        {"n": 5.0, "mean": 30.0, "std": 1.0},
+        {"n": 5, "mean": 30.0, "std": -1.0},
+        [5, 30.0, 1.0],
+    ],
+)
+def test_a_baseline_of_no_finite_time_is_refused_as_a_run_field_is(tmp_path, time):
     run = fake_run(tmp_path, "sac", "sac", "compound", 0, 90.0)
     bad = tmp_path / "nan.json"
-    bad.write_text(json.dumps({"time_success_s": {"n": 5, "mean": float("nan"), "std": 1.0}}))
-    with pytest.raises(SystemExit, match="baseline .*nan.json: .*finite"):
+    bad.write_text(json.dumps({"time_success_s": time}))
+    with pytest.raises(SystemExit, match="baseline .*nan.json: time_success_s must be .*finite"):
         main(["table", str(run), "--out", str(tmp_path / "out"), "--baseline", str(bad)])
 
 

@@ -25,6 +25,8 @@ def _stats(v) -> bool:
     return _number(v.get("mean")) and _number(v.get("std")) and v["std"] >= 0
 
 
+_STATS = "{n, mean, std} with n an integer >= 0, mean and std finite"
+
 #: per file, each field the table reads and what it must be
 _FIELDS = {
     "config": {
@@ -39,9 +41,9 @@ _FIELDS = {
     "eval": {
         "episodes": ("an integer >= 1", lambda v: _count(v, 1)),
         "success_rate": ("a number in [0, 100]", lambda v: _number(v) and 0 <= v <= 100),
-        "time_s": ("{n, mean, std}", _stats),
-        "total_reward": ("{n, mean, std}", _stats),
-        "time_success_s": ("{n, mean, std}", lambda v: v is None or _stats(v)),
+        "time_s": (_STATS, _stats),
+        "total_reward": (_STATS, _stats),
+        "time_success_s": (_STATS, lambda v: v is None or _stats(v)),
     },
 }
 

@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from dockingrl.evaluation import PAPER_RESULTS
+from dockingrl.io import first_line
+from dockingrl.table.checks import field_problem
 
 #: confidence level of every interval
 LEVEL = 0.95
@@ -161,18 +163,16 @@ def _ahead(claim: str, groups: dict[str, list[float]], claimed, recipe: str) -> 
 
 def read_baseline(path: Path) -> dict:
     """An evaluation's ``eval.json`` with its time to dock successfully (``time_success_s``:
-    n, mean, std)."""
+    n, mean, std), checked as the table checks a run's (:func:`field_problem`)."""
     try:
         base = json.loads(path.read_text())
-        time = base["time_success_s"]
-        if not all(isinstance(time[k], (int, float)) for k in ("n", "mean", "std")):
-            raise TypeError("time_s n, mean and std must be numbers")
-        if not (time["n"] >= 0 and math.isfinite(time["mean"]) and math.isfinite(time["std"])):
-            raise TypeError("time_s n must be >= 0, its mean and std finite")
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise ValueError(
-            f"baseline {path}: not an evaluation's eval.json with time_success_s ({e})"
-        ) from None
+    except (OSError, ValueError) as e:
+        raise ValueError(f"baseline {path}: not a readable eval.json ({first_line(e)})") from None
+    if not isinstance(base, dict) or base.get("time_success_s") is None:
+        raise ValueError(f"baseline {path}: not an evaluation's eval.json with time_success_s")
+    problem = field_problem("eval", {"time_success_s": base["time_success_s"]})
+    if problem:
+        raise ValueError(f"baseline {path}: {problem}")
     return base
 
 
