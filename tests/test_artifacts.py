@@ -587,6 +587,23 @@ def test_bad_checkpoint_states_are_one_line_naming_them(tmp_path):
             lambda: save_artifact(state_file, {**state, "agent": {"loss": {}}}),
             "does not fit this run",
         ),
+        # re-saved whole by hand: refused before the training loop would trip on them
+        "frames not a count": (
+            lambda: save_artifact(state_file, {**state, "frames": "abc"}),
+            "frames must be an integer >= 0 (got 'abc')",
+        ),
+        "elapsed not finite": (
+            lambda: save_artifact(state_file, {**state, "elapsed": float("nan")}),
+            "elapsed must be a finite number >= 0 (got nan)",
+        ),
+        "RNG state not bytes": (
+            lambda: save_artifact(state_file, {**state, "torch_rng": [1, 2]}),
+            "torch_rng must be a uint8 tensor",
+        ),
+        "kept actor without weights": (
+            lambda: save_artifact(state_file, {**state, "candidates": [{"success": 90.0}]}),
+            "candidates must be a list of kept actors",
+        ),
     }
     for kind, (make, expected) in cases.items():
         make()
