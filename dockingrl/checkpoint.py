@@ -17,6 +17,7 @@ from dockingrl.io import (
     folder_manifest,
     read_artifact,
     read_to_upgrade,
+    require_finite,
     require_keys,
     save_artifact,
 )
@@ -87,6 +88,7 @@ def read_state(folder: str | Path) -> dict:
     problem = _counter_problem(state)
     if problem:
         raise ArtifactError(f"{path}: {problem}")
+    require_finite(path, "agent", state["agent"])
     replay = folder / "replay"
     if state["replay"] is None:
         if replay.exists() or replay.is_symlink():

@@ -565,11 +565,19 @@ def test_every_flipped_byte_of_a_checkpoint_is_detected(tmp_path):
     read_state(path)
 
 
+def agent_state(state, part, key, value):
+    """``state`` with the entry ``key`` of its agent's ``part`` set to ``value``."""
+    agent = state["agent"]
+    return {**state, "agent": {**agent, part: {**agent[part], key: value}}}
+
+
 def test_bad_checkpoint_states_are_one_line_naming_them(tmp_path):
     _, path = checkpointed(tmp_path)
     state_file = path / "state.pt"
     good = state_file.read_bytes()
     state = read_artifact(state_file, "x", "dockingrl.checkpoint/2")
+    loss = state["agent"]["loss"]
+    first_weight = next(k for k, v in loss.items() if k.endswith("weight"))
     cases = {
         "truncated": (lambda: state_file.write_bytes(good[: len(good) // 2]), "truncated"),
         "random": (lambda: state_file.write_bytes(os.urandom(len(good))), "not a PyTorch"),
@@ -603,6 +611,28 @@ def test_bad_checkpoint_states_are_one_line_naming_them(tmp_path):
         "kept actor without weights": (
             lambda: save_artifact(state_file, {**state, "candidates": [{"success": 90.0}]}),
             "candidates must be a list of kept actors",
+        ),
+        # torch would broadcast a number into the weight, or skip a None
+        "a weight replaced by a number": (
+            lambda: save_artifact(state_file, agent_state(state, "loss", first_weight, 1.5)),
+            f"does not fit this run (loss.{first_weight} must be a tensor of shape",
+        ),
+        "a NaN weight": (
+            lambda: save_artifact(
+                state_file,
+                agent_state(state, "loss", first_weight, loss[first_weight] * float("nan")),
+            ),
+            f"non-finite numbers in agent.loss.{first_weight}",
+        ),
+        "updates not a count": (
+            lambda: save_artifact(
+                state_file, {**state, "agent": {**state["agent"], "updates": "x"}}
+            ),
+            "does not fit this run (updates must be an integer >= 0 (got 'x'))",
+        ),
+        "an optimiser state not a dict": (
+            lambda: save_artifact(state_file, agent_state(state, "optimizers", "actor", None)),
+            "does not fit this run (optimizers.actor must be an optimiser's state dict)",
         ),
     }
     for kind, (make, expected) in cases.items():

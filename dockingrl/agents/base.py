@@ -112,7 +112,9 @@ class Agent:
         and keeps its own fixed values (a fixed temperature, the target entropy, the
         discount, PPO's coefficients); the optimisers take their moments and keep their
         learning rate, betas, fused... (``load_state_dict`` of a torch module or optimiser
-        takes the saved values of all of them)."""
+        takes the saved values of all of them). Raises ``ValueError`` (one line naming the
+        entry) for a state not of this agent's shapes."""
+        self._check_state(state)
         loss = state["loss"]
         if own_settings:
             mine = self.loss.state_dict()
@@ -140,6 +142,34 @@ class Agent:
                 self.average.module.load_state_dict(self.actor.state_dict())
             else:
                 raise ValueError("the agent averages its actor; the state holds no averaged actor")
+
+    def _check_state(self, state) -> None:
+        """Refuse a ``state`` whose entries are not those of :meth:`state_dict`'s kinds and
+        shapes: torch would broadcast a number into a weight tensor, or skip a ``None``."""
+        mine = self.state_dict()
+        if not isinstance(state, dict) or not isinstance(state.get("optimizers"), dict):
+            raise ValueError("the agent's state must be a dict with a dict of optimizers")
+        updates = state.get("updates")
+        if isinstance(updates, bool) or not isinstance(updates, int) or updates < 0:
+            raise ValueError(f"updates must be an integer >= 0 (got {updates!r:.40})")
+        for name in self.optimizers:
+            if not isinstance(state["optimizers"].get(name), dict):
+                raise ValueError(f"optimizers.{name} must be an optimiser's state dict")
+        for part in ("loss", "averaged"):
+            if part not in mine or part not in state:
+                continue
+            if not isinstance(state[part], dict):
+                raise ValueError(f"{part} must be a dict of tensors")
+            for key, own in mine[part].items():
+                given = state[part].get(key, own)
+                if isinstance(own, torch.Tensor) and not (
+                    isinstance(given, torch.Tensor) and given.shape == own.shape
+                ):
+                    shape = tuple(given.shape) if isinstance(given, torch.Tensor) else given
+                    raise ValueError(
+                        f"{part}.{key} must be a tensor of shape {tuple(own.shape)} "
+                        f"(got {shape!r:.40})"
+                    )
 
 
 def scalar(value: torch.Tensor) -> float:
