@@ -442,6 +442,26 @@ def test_upgrade_leaves_an_old_filter_that_does_not_fit_the_ekf_as_it_was(tmp_pa
     assert (tmp_path / "p.pt").read_bytes() == before
 
 
+def test_upgrade_converts_the_old_filter_a_current_policy_carries(tmp_path, capsys):
+    saved_policy(tmp_path / "p.pt")
+    ekf = EKFTransform()
+    old = {
+        "format": "dockingrl.filter_params/4",
+        "process_noise": ekf.process_noise.state_dict(),
+        "measurement_noise": ekf.measurement_noise.state_dict(),
+    }
+    save_artifact(tmp_path / "p.pt", {**read_policy(tmp_path / "p.pt"), "filter_params": old})
+    with pytest.raises(ArtifactError, match="the filter it carries: of the older format"):
+        load_policy(tmp_path / "p.pt")
+    assert run(tmp_path / "p.pt") == 0
+    out = capsys.readouterr().out
+    assert "dockingrl.policy/2 carrying dockingrl.filter_params/4 -> dockingrl.policy/2" in out
+    _, info = load_policy(tmp_path / "p.pt")
+    assert info["filter_params"]["format"] == "dockingrl.filter_params/5"
+    assert run(tmp_path / "p.pt") == 0
+    assert "already dockingrl.policy/2" in capsys.readouterr().out
+
+
 def test_a_filter_file_round_trips(tmp_path):
     ekf = learned_filter(tmp_path / "f.pt")
     fresh = EKFTransform().load_filter_params(tmp_path / "f.pt")

@@ -14,6 +14,7 @@ from dockingrl.io import (
     ArtifactError,
     first_line,
     read_artifact,
+    read_old_artifact,
     read_to_upgrade,
     require_finite,
     require_keys,
@@ -288,17 +289,23 @@ def _describe(layout: Mapping) -> str:
 
 
 def upgrade_policy(path: str | Path) -> str:
-    """Rewrite the policy file ``path`` of an older format in the current one (atomically):
-    its observation layout derived from its config, the learned filter it carries upgraded
-    too. Returns what was done."""
+    """Rewrite the policy file ``path`` of an older format, or one carrying a learned filter of
+    an older format, in the current ones (atomically): its observation layout derived from its
+    config, the learned filter it carries upgraded too. Returns what was done."""
     from dockingrl.agents.config import CONFIGS
     from dockingrl.transforms.params import FORMAT as FILTER_FORMAT
+    from dockingrl.transforms.params import OLD_FORMATS as OLD_FILTER_FORMATS
     from dockingrl.transforms.params import upgrade_payload
 
     payload = read_to_upgrade(path, WHAT, FORMAT, OLD_FORMATS)
-    if payload is None:
-        return f"{path}: already {FORMAT}"
-    found = payload["format"]
+    if payload is None:  # the current format, whose carried filter may be of an older one
+        payload = read_old_artifact(path, WHAT)
+        carried = payload.get("filter_params")
+        if not isinstance(carried, dict) or carried.get("format") not in OLD_FILTER_FORMATS:
+            return f"{path}: already {FORMAT}"
+        found = f"{FORMAT} carrying {carried['format']}"
+    else:
+        found = payload["format"]
     payload.setdefault("filter_params", None)
     payload.setdefault("metadata", {})
     _check_payload(path, payload, CONFIGS)
