@@ -6,15 +6,18 @@ state and the sha256 of each file of its ``replay/`` folder (TorchRL's
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import torch
 
 from dockingrl.io import (
     ArtifactError,
+    FieldRule,
     check_folder,
+    first_bad_field,
     folder_manifest,
+    is_count,
+    is_finite_number,
     read_artifact,
     read_to_upgrade,
     require_finite,
@@ -85,7 +88,7 @@ def read_state(folder: str | Path) -> dict:
         raise ArtifactError(f"{path}: a link; a checkpoint's state is a plain file")
     state = read_artifact(path, WHAT, FORMAT, OLD_FORMATS)
     require_keys(path, state, WHAT, KEYS + ("replay",))
-    problem = _counter_problem(state)
+    problem = first_bad_field(_ENTRIES, state)
     if problem:
         raise ArtifactError(f"{path}: {problem}")
     require_finite(path, "agent", state["agent"])
@@ -98,32 +101,26 @@ def read_state(folder: str | Path) -> dict:
     return state
 
 
-def _count(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
 def _candidate(value) -> bool:
     """A kept actor as the trainer writes it: ``{"success", "frames", "actor"}``."""
     return (
         isinstance(value, dict)
         and isinstance(value.get("success"), (int, float))
         and not isinstance(value.get("success"), bool)
-        and _count(value.get("frames"))
+        and is_count(value.get("frames"))
         and isinstance(value.get("actor"), dict)
     )
 
 
-#: what each entry of a checkpoint's state beside the agent's must be, and how to tell
-_ENTRIES = {
+#: what each entry of a checkpoint's state beside the agent's must be, and how to tell: a
+#: checkpoint re-saved whole by hand would otherwise fail deep in the training loop
+_ENTRIES: dict[str, FieldRule] = {
     "agent": ("a dict", lambda v: isinstance(v, dict)),
-    "frames": ("an integer >= 0", _count),
-    "episodes": ("an integer >= 0", _count),
-    "elapsed": (
-        "a finite number >= 0",
-        lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf,
-    ),
-    "next_eval": ("an integer >= 0 or None", lambda v: v is None or _count(v)),
-    "next_checkpoint": ("an integer >= 0 or None", lambda v: v is None or _count(v)),
+    "frames": ("an integer >= 0", is_count),
+    "episodes": ("an integer >= 0", is_count),
+    "elapsed": ("a finite number >= 0", lambda v: is_finite_number(v) and v >= 0),
+    "next_eval": ("an integer >= 0 or None", lambda v: v is None or is_count(v)),
+    "next_checkpoint": ("an integer >= 0 or None", lambda v: v is None or is_count(v)),
     "torch_rng": (
         "a uint8 tensor (torch.get_rng_state())",
         lambda v: isinstance(v, torch.Tensor) and v.dtype == torch.uint8 and v.dim() == 1,
@@ -138,16 +135,6 @@ _ENTRIES = {
         lambda v: isinstance(v, list) and all(_candidate(c) for c in v),
     ),
 }
-
-
-def _counter_problem(state: dict) -> str:
-    """The first entry of a checkpoint's ``state`` that is not what the trainer writes, as
-    ``"frames must be an integer >= 0 (got 'abc')"``; "" if none. A checkpoint re-saved whole
-    by hand would otherwise fail deep in the training loop."""
-    for key, (what, ok) in _ENTRIES.items():
-        if key in state and not ok(state[key]):
-            return f"{key} must be {what} (got {state[key]!r:.60})"
-    return ""
 
 
 def upgrade_state(path: str | Path) -> str:

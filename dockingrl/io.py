@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 import pickle
 import re
@@ -293,6 +294,30 @@ def require_finite(path: str | Path, name: str, tree: Any) -> None:
     ]
     if bad:
         raise ArtifactError(f"{path}: non-finite numbers in {', '.join(bad[:3])}")
+
+
+def is_count(value: Any, least: int = 0) -> bool:
+    """Whether ``value`` read back from a file is an integer >= ``least`` (a bool is not)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
+def is_finite_number(value: Any) -> bool:
+    """Whether ``value`` read back from a file is a finite number (a bool is not)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+#: a field of a file read back: what it must be, in words, and the test of a value
+FieldRule = tuple[str, Callable[[Any], bool]]
+
+
+def first_bad_field(rules: Mapping[str, FieldRule], values: Mapping) -> str:
+    """The first of ``values``'s fields that ``rules`` name and that fails its rule, as
+    ``"frames must be an integer >= 0 (got 'abc')"`` (the value cut at 80 characters); ""
+    if none. A field ``values`` lacks is not checked here (:func:`require_keys`)."""
+    for key, (what, ok) in rules.items():
+        if key in values and not ok(values[key]):
+            return f"{key} must be {what} (got {values[key]!r:.80})"
+    return ""
 
 
 def _tensors(key: str, tree: Any):

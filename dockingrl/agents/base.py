@@ -15,6 +15,7 @@ from torchrl.objectives.value import GAE
 
 from dockingrl.agents.averaging import ActorAverage
 from dockingrl.agents.config import TrainConfig
+from dockingrl.io import is_count
 
 
 @dataclass
@@ -150,7 +151,7 @@ class Agent:
         if not isinstance(state, dict) or not isinstance(state.get("optimizers"), dict):
             raise ValueError("the agent's state must be a dict with a dict of optimizers")
         updates = state.get("updates")
-        if isinstance(updates, bool) or not isinstance(updates, int) or updates < 0:
+        if not is_count(updates):
             raise ValueError(f"updates must be an integer >= 0 (got {updates!r:.40})")
         for name in self.optimizers:
             if not isinstance(state["optimizers"].get(name), dict):

@@ -46,6 +46,7 @@ __all__ = [
     "make_config",
     "overrides_from_args",
     "parse_overrides",
+    "saved_fields",
 ]
 
 #: config fields that are not command-line options: the algorithm is chosen by ``--algo`` or the
@@ -273,6 +274,14 @@ def check_types(algo: str, values: dict[str, Any]) -> None:
             )
         if not ok:
             raise ValueError(f"{algo} option {name}: expected {kind}, got {value!r}")
+
+
+def saved_fields(algo: str, saved: dict[str, Any]) -> dict[str, Any]:
+    """The fields of an ``algo`` config saved as a dict (a run's ``config.json``, a policy
+    file's ``config``) as the config takes them: type-checked (:func:`check_types`, ``algo``
+    and ``recipe`` aside) and ``hidden`` a tuple. Raises ``ValueError`` (one line)."""
+    check_types(algo, {k: v for k, v in saved.items() if k not in _NOT_OPTIONS})
+    return {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items()}
 
 
 def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:

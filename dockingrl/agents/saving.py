@@ -13,6 +13,7 @@ from torchrl.data import Bounded
 from dockingrl.io import (
     ArtifactError,
     first_line,
+    is_count,
     read_artifact,
     read_old_artifact,
     read_to_upgrade,
@@ -165,7 +166,7 @@ def _check_payload(path, payload: dict, configs: Mapping) -> None:
         )
     _check_config(path, algo, config)
     obs_dim = payload["obs_dim"]
-    if isinstance(obs_dim, bool) or not isinstance(obs_dim, int) or not 0 < obs_dim < 2**16:
+    if not (is_count(obs_dim, 1) and obs_dim < 2**16):
         raise ArtifactError(f"{path}: obs_dim must be a whole number > 0 (got {obs_dim!r:.60})")
     require_finite(path, "state_dict", payload["state_dict"])
     low, high, max_dist = payload["action_low"], payload["action_high"], payload["max_dist"]
@@ -193,18 +194,14 @@ def _check_payload(path, payload: dict, configs: Mapping) -> None:
 def _check_config(path, algo: str, config: dict) -> None:
     """Refuse (one line naming ``path``) a saved config whose fields have the wrong type or
     lie out of their range, as training would have refused them."""
-    from dockingrl.agents.config import CONFIGS, check_types
+    from dockingrl.agents.config import CONFIGS, saved_fields
 
-    values = {k: v for k, v in config.items() if k not in ("algo", "recipe")}
     try:
         if config.get("algo", algo) != algo:
             raise ValueError(f"algo {config['algo']!r} is not the file's {algo!r}")
         if not isinstance(config.get("recipe", ""), str):
             raise ValueError(f"recipe must be a name (got {config['recipe']!r})")
-        check_types(algo, values)
-        if "hidden" in values:
-            values["hidden"] = tuple(values["hidden"])
-        CONFIGS[algo](**values).validate()
+        CONFIGS[algo](**saved_fields(algo, config)).validate()
     except ValueError as exc:
         raise ArtifactError(f"{path}: its config: {first_line(exc)}") from None
 

@@ -8,7 +8,7 @@ import shutil
 from dataclasses import fields
 from pathlib import Path
 
-from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
+from dockingrl.agents.config import CONFIGS, TrainConfig, saved_fields
 from dockingrl.env.checks import available_device
 from dockingrl.io import file_in_the_way, write_json
 from dockingrl.training.logger import RunLogger
@@ -131,10 +131,9 @@ def _saved_config(path: Path) -> dict:
     names = {f.name for f in fields(CONFIGS[saved["algo"]])}
     saved = {k: v for k, v in saved.items() if k in names}
     try:
-        check_types(saved["algo"], {k: v for k, v in saved.items() if k not in ("algo", "recipe")})
+        return saved_fields(saved["algo"], saved)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
-    return {k: (tuple(v) if k == "hidden" else v) for k, v in saved.items()}
 
 
 def _start(cfg, run_dir, resume, progress, command) -> tuple[Trainer, bool]:
