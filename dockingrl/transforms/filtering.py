@@ -28,12 +28,7 @@ from dockingrl.transforms.ekf import (
     measurement_function,
     state_from_observation,
 )
-from dockingrl.transforms.noise import (
-    MeasurementNoise,
-    NoiseContext,
-    NoiseParameters,
-    ProcessNoise,
-)
+from dockingrl.transforms.noise import NoiseParameters
 from dockingrl.transforms.params import load_filter_params, save_filter_params
 
 
@@ -165,11 +160,13 @@ class EKFTransform(NoiseParameters, Transform):
         self.mean_key, self.cov_key, self.age_key = "ekf_mean", "ekf_cov", "ekf_age"
         self.history_key = "ekf_usbl_history"
         self.dt, self.k_v, self.k_w = dt, k_v, k_w
-        self.process_noise = ProcessNoise(process_noise_std, manoeuvre=manoeuvre_noise)
-        self.measurement_noise = MeasurementNoise(measurement_noise_std)
-        self.noise_context: NoiseContext | None = None
-        self.set_context_noise(context_noise)
-        self.range_noise_from = range_noise_from
+        self.init_noise_models(
+            process_noise_std,
+            measurement_noise_std,
+            manoeuvre_noise=manoeuvre_noise,
+            context_noise=context_noise,
+            range_noise_from=range_noise_from,
+        )
         self.set_learnable(learnable)
         bounds = None
         if (action_low is None) != (action_high is None):

@@ -207,6 +207,24 @@ class NoiseParameters:
     measurement_noise: MeasurementNoise
     noise_context: NoiseContext | None
 
+    def init_noise_models(
+        self,
+        process_noise_std: Sequence[float] = PROCESS_NOISE_STD,
+        measurement_noise_std: Sequence[float] = MEASUREMENT_NOISE_STD,
+        *,
+        manoeuvre_noise: bool = False,
+        context_noise: bool = False,
+        range_noise_from: str = "measurement",
+    ) -> Self:
+        """Build the noise models from their initial standard deviations (the paper's by
+        default), as :class:`~dockingrl.transforms.filtering.EKFTransform` takes them."""
+        self.process_noise = ProcessNoise(process_noise_std, manoeuvre=manoeuvre_noise)
+        self.measurement_noise = MeasurementNoise(measurement_noise_std)
+        self.noise_context = None
+        self.set_context_noise(context_noise)
+        self.range_noise_from = range_noise_from
+        return self
+
     def set_learnable(self, learnable: bool = True) -> Self:
         """Freeze or unfreeze ``Q`` and ``R``."""
         for p in self.noise_parameters():

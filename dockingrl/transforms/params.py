@@ -17,7 +17,7 @@ from dockingrl.io import (
     require_keys,
     save_artifact,
 )
-from dockingrl.transforms.noise import MeasurementNoise, NoiseParameters, ProcessNoise
+from dockingrl.transforms.noise import NoiseParameters
 
 FORMAT = "dockingrl.filter_params/5"
 #: version 1 stored ``Q``'s Cholesky factor with absolute off-diagonal entries
@@ -139,7 +139,4 @@ def check_fits(payload: Mapping, name: str) -> None:
     """Raise :class:`~dockingrl.io.ArtifactError` (its line starting with ``name``) unless the
     filter parameters ``payload`` (of the current format) load into the EKF: what an upgrade
     checks before it writes, as older formats do not say which filter they were for."""
-    holder = NoiseParameters()
-    holder.process_noise, holder.measurement_noise = ProcessNoise(), MeasurementNoise()
-    holder.noise_context, holder.range_noise_from = None, "measurement"
-    load_filter_params(holder, payload, name=name)
+    load_filter_params(NoiseParameters().init_noise_models(), payload, name=name)
