@@ -37,7 +37,7 @@ SHARED = (
 ).split()
 OFF_POLICY = (
     "batch_size gamma lr lr_schedule buffer_size start_steps tau updates_per_step "
-    "frames_per_batch n_steps critic_layer_norm critic_dropout mirror_augment"
+    "frames_per_batch n_steps critic_layer_norm critic_dropout reset_every mirror_augment"
 ).split()
 SAVED_ORDER = {
     SACConfig: SHARED + OFF_POLICY + "alpha learn_alpha target_entropy privileged_critic".split(),

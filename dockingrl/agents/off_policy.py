@@ -236,6 +236,20 @@ class OffPolicyAgent(Agent):
     def __post_init__(self) -> None:
         if self.window is None:
             self.window = NStepWindow(self.config.n_steps, self.config.gamma)
+        if self.config.reset_every:
+            built = self.loss.state_dict()
+            self.extra["built"] = {k: v.detach().clone() for k, v in built.items()}
+
+    def reset_networks(self) -> None:
+        """Put the actor, the critics, their targets (the loss's learned temperature too) back
+        to the weights this agent was built with, in place, and clear the optimisers'
+        moments; the replay buffer and the update count stay (``reset_every``, Nikishin et
+        al., ICML 2022). A resumed run builds the same weights from its seed."""
+        if "built" not in self.extra:
+            raise ValueError("reset_networks needs an agent built with reset_every > 0")
+        self.loss.load_state_dict(self.extra["built"])
+        for optimizer in self.optimizers.values():
+            optimizer.state.clear()
 
     @classmethod
     def build(cls, cfg, actor, action_spec, obs_dim, scale, max_dist, device) -> Agent:

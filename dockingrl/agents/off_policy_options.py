@@ -45,6 +45,14 @@ class OffPolicyOptions:
         "critic ensemble at high update ratios; 0: none; not in the paper)",
         default=0.0,
     )
+    reset_every: int = documented(
+        "env steps between resets of the actor, the critics, their targets and the "
+        "optimisers to the weights the run's agent was built with (moments cleared), the "
+        "replay buffer kept: against the primacy bias of high update ratios (Nikishin et al., "
+        "ICML 2022); at each multiple of it before the run's last batch; 0: never; not in the "
+        "paper",
+        default=0,
+    )
     mirror_augment: bool = documented(
         "store each transition twice in the replay buffer: as collected and mirrored "
         "through the docking axis (y -> -y; the task is symmetric under it, see "
@@ -60,8 +68,14 @@ class OffPolicyOptions:
             counts=("n_steps",),
             positive=("lr", "updates_per_step"),
             unit=("tau", "gamma"),
-            non_negative=("start_steps",),
+            non_negative=("start_steps", "reset_every"),
         )
+        if self.reset_every and getattr(self, "actor_average", 0.0):
+            refuse(
+                self,
+                "reset_every",
+                "cannot go with actor_average (an average across a reset mixes two networks)",
+            )
         check_lr_schedule(self)
         if not 0.0 <= self.critic_dropout < 1.0:
             refuse(self, "critic_dropout", "must lie in [0, 1)")
