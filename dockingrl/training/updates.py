@@ -27,7 +27,7 @@ def resets_before(cfg: TrainConfig, frames: int, batch_frames: int) -> bool:
     """Whether the off-policy agent resets its networks before learning on the batch that
     brings the run to ``frames`` env steps: a multiple of ``reset_every`` falls within the
     batch, and the batch is not the run's last."""
-    every = getattr(cfg, "reset_every", 0)
+    every = cfg.reset_every
     if not every or frames >= cfg.total_steps:
         return False
     return frames // every > (frames - batch_frames) // every
