@@ -109,6 +109,12 @@ class OffPolicyConfig(OffPolicyOptions, TrainConfig):
     def validate(self) -> None:
         super().validate()
         self._check_off_policy()
+        if self.reset_every and self.actor_average:
+            refuse(
+                self,
+                "reset_every",
+                "cannot go with actor_average (an average across a reset mixes two networks)",
+            )
         name = type(self).__name__
         if self.frames_per_batch < self.num_envs:
             raise ValueError(f"{name}.frames_per_batch: must be >= num_envs")

@@ -70,12 +70,6 @@ class OffPolicyOptions:
             unit=("tau", "gamma"),
             non_negative=("start_steps", "reset_every"),
         )
-        if self.reset_every and getattr(self, "actor_average", 0.0):
-            refuse(
-                self,
-                "reset_every",
-                "cannot go with actor_average (an average across a reset mixes two networks)",
-            )
         check_lr_schedule(self)
         if not 0.0 <= self.critic_dropout < 1.0:
             refuse(self, "critic_dropout", "must lie in [0, 1)")
