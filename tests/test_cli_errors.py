@@ -1,8 +1,10 @@
 """Every ``dockingrl`` error is one line on stderr and a non-zero exit status (2: a bad command
 line, 130: interrupted, 1: anything else); the traceback only with ``--debug``."""
 
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -355,3 +357,38 @@ def test_a_reader_that_stops_early_gets_no_error():
     stderr = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141, stderr
     assert "rror" not in stderr, stderr
+
+
+@pytest.mark.parametrize(
+    ("layout", "says"),
+    [
+        ("finished", "a finished run (summary.json) with no checkpoint to resume from"),
+        ("no_pointer", "holds checkpoint folders but no latest.json naming a complete one"),
+        ("file", "a file, not the run's checkpoint folder"),
+    ],
+)
+def test_resuming_a_run_with_nothing_to_go_on_from_leaves_it_as_it_was(
+    layout, says, tmp_path, capsys
+):
+    """A run folder whose work a start from scratch would overwrite (a finished run without
+    checkpoints, checkpoints without the pointer to a complete one) is refused before anything
+    in it is written."""
+    source = Path(__file__).parents[1] / "results" / "agents" / "sac_compound"
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("config.json", "curves.csv", "summary.json"):
+        shutil.copy(source / name, run / name)
+    if layout == "no_pointer":
+        (run / "summary.json").unlink()
+        (run / "checkpoints" / "step_0000001000").mkdir(parents=True)
+    elif layout == "file":
+        (run / "checkpoints").write_text("")
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
+    line = fails(capsys, ["train", "--resume", str(run), "--total-steps", "600000"], 1)
+    assert says in line and "unexpected" not in line
+    # the folder as it was, but for the lock the refusing process held (run.lock)
+    after = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file() and p.name != "run.lock"}
+    assert after == before
+    assert sorted(p.name for p in run.iterdir() if p.name != "run.lock") == sorted(
+        [*before, *(["checkpoints"] if layout == "no_pointer" else [])]
+    )

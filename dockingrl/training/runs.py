@@ -10,7 +10,7 @@ from pathlib import Path
 
 from dockingrl.agents.config import CONFIGS, TrainConfig, saved_fields
 from dockingrl.env.checks import available_device
-from dockingrl.io import file_in_the_way, write_json
+from dockingrl.io import ArtifactError, file_in_the_way, write_json
 from dockingrl.training.logger import RunLogger
 from dockingrl.training.run_folder import RunLock, default_run_name
 from dockingrl.training.stopping import TrainingInterrupted
@@ -139,12 +139,38 @@ def _saved_config(path: Path) -> dict:
 def _start(cfg, run_dir, resume, progress, command) -> tuple[Trainer, bool]:
     """The run's trainer and whether it was restored from a checkpoint (when resumed), else
     warm-started where ``init_from`` asks."""
+    if resume is not None:
+        _check_resumable(run_dir)
     trainer = Trainer(cfg, run_dir, progress=progress, command=command)
     # a run that stopped before its first checkpoint starts again from its config
     restored = resume is not None and trainer.load_checkpoint()
     if not restored and cfg.init_from:
         trainer.warm_start()
     return trainer, restored
+
+
+def _check_resumable(run_dir: Path) -> None:
+    """Refuse to resume a run folder that holds no checkpoint to go on from but whose work a
+    start from scratch would overwrite: a finished run (``summary.json``) or checkpoint
+    folders without the ``latest.json`` that names the complete one. A run that stopped
+    before its first checkpoint (neither) starts again from its config."""
+    from dockingrl.checkpoint import latest_checkpoint
+
+    root = run_dir / "checkpoints"
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(f"{root}: a file, not the run's checkpoint folder")
+    if latest_checkpoint(root) is not None:
+        return
+    if any(root.glob("step_*")):
+        raise ArtifactError(
+            f"{root}: holds checkpoint folders but no latest.json naming a complete one; "
+            "nothing resumed"
+        )
+    if (run_dir / "summary.json").exists():
+        raise FileExistsError(
+            f"{run_dir}: a finished run (summary.json) with no checkpoint to resume from; "
+            "train anew into another folder"
+        )
 
 
 def _train_locked(trainer, restored, cfg, run_dir, resume, overrides) -> dict:
