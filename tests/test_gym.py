@@ -167,6 +167,26 @@ def test_refusals_are_one_clear_line():
         DockingVectorEnv(2, "compound", observe_current=True, config=level_config("L5"))
 
 
+@pytest.mark.parametrize("fast", [False, True])
+def test_a_step_after_the_episode_ends_or_after_close_needs_a_reset(fast):
+    """Stepping on past a terminal step would go on adding the docked reward: refused until
+    the next reset, as is a step of a closed env."""
+    env = DockingScenarioEnv("no_noise", fast=fast)
+    env.reset(seed=0, options={"pose": (-3.0, 0.0, 0.0), "ocean_current": (0.0, 0.0)})
+    steps, terminated, truncated = 0, False, False
+    while not (terminated or truncated):
+        _, _, terminated, truncated, _ = env.step(np.array([0.8, 0.0]))
+        steps += 1
+    assert terminated and steps < 100
+    with pytest.raises(RuntimeError, match=r"the episode has ended .*: call reset\(\)"):
+        env.step(np.array([0.8, 0.0]))
+    env.reset(seed=1)
+    env.step(np.array([0.8, 0.0]))  # a new episode steps again
+    env.close()
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+        env.step(np.array([0.8, 0.0]))
+
+
 def test_reset_options_pin_the_start():
     env = gymnasium.make(ID, scenario="noise").unwrapped
     _, info = env.reset(seed=0, options={"pose": (-20.0, 3.0, 0.5), "ocean_current": (0.1, -0.2)})

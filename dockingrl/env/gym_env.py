@@ -160,6 +160,8 @@ class DockingGymEnv(gymnasium.Env):
         self._state: SimulatorState | None = None
         #: the last reset's or step's ``info``
         self._last_info: dict[str, Any] | None = None
+        #: whether the last step ended the episode (the next step needs a reset first)
+        self._ended = False
 
     # -- the step as a pure tensor function, and the hooks of the scenarios ---------------
     def _observe_reset(self, out: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -255,6 +257,7 @@ class DockingGymEnv(gymnasium.Env):
             self._state = SimulatorState(*floats, 0)
             self._start_fast()
         self._last_info = self._info(out)
+        self._ended = False
         return observation[0].numpy().copy(), self._last_info
 
     def _action(self, action) -> np.ndarray:
@@ -288,8 +291,17 @@ class DockingGymEnv(gymnasium.Env):
     def step(self, action):
         if self._last_info is None:
             raise RuntimeError("call reset() before step()")
-        if self.fast:
-            return self._fast_step(action)
+        if self._ended:
+            raise RuntimeError("the episode has ended (terminated or truncated): call reset()")
+        result = self._fast_step(action) if self.fast else self._tensor_step_once(action)
+        self._ended = result[2] or result[3]
+        return result
+
+    def close(self) -> None:
+        """End the env: a step needs a reset first."""
+        self._last_info, self._ended = None, False
+
+    def _tensor_step_once(self, action):
         applied = torch.from_numpy(self._action(action)).reshape(1, ACTION_DIM)
         sim = self._env
         with torch.inference_mode():

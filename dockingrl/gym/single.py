@@ -309,6 +309,7 @@ class DockingScenarioEnv(DockingGymEnv):
         return None
 
     def close(self) -> None:
+        super().close()
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
