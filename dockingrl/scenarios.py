@@ -10,6 +10,7 @@ import torch
 from torchrl.envs import Compose, Transform, TransformedEnv
 
 from dockingrl.env import DockingConfig, DockingEnv
+from dockingrl.env.config import config_or_default
 from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform, PreviousAction
 from dockingrl.transforms.current_filter import CurrentEstimatingEKF
 from dockingrl.transforms.repeat import check_action_repeat
@@ -187,7 +188,7 @@ def make_env(
     layout = observation_layout(
         scenario, observe_current=observe_current, observe_command=observe_command
     )
-    config = (config or DockingConfig()).replace(noise=scenario != "no_noise")
+    config = config_or_default(config).replace(noise=scenario != "no_noise")
     base = DockingEnv(num_envs, config=config, device=device, seed=seed, compile_step=compile)
     stages: list[Transform] = []
     if scenario in FILTERED_OBSERVATION_KEYS:

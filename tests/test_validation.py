@@ -219,6 +219,22 @@ def test_num_envs_any_positive_integral():
         assert "num_envs must be a positive integer" in refusal(DockingEnv, bad)
 
 
+def test_env_builders_refuse_a_wrong_config_device_or_filter_params_in_one_line():
+    """What the command line checks for itself is checked for the Python API too, before a
+    foreign library's error could say it less clearly."""
+    for build in (make_env, lambda s, **kw: gymnasium.make("dockingrl/Docking-v0", **kw)):
+        for bad in ("paper.yaml", {"dt": 0.2}):
+            said = refusal(build, "noise", config=bad, kind=TypeError)
+            assert said.startswith(f"config must be a DockingConfig, got {type(bad).__name__}")
+    assert refusal(make_env, "noise", device="gpu") == "not a torch device: 'gpu'"
+    assert refusal(DockingEnv, 2, device="tpu") == "not a torch device: 'tpu'"
+    if not torch.cuda.is_available():
+        said = refusal(make_env, "noise", device="cuda")
+        assert said == "'cuda': CUDA is not available on this machine"
+    said = refusal(make_env, "filtered", filter_params=3, kind=TypeError)
+    assert said == "filter_params must be a file path or the payload read from one, got int"
+
+
 def test_batched_env_refuses_bad_actions_in_one_line():
     env = DockingEnv(3, seed=0)
     td = env.reset()

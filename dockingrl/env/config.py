@@ -121,6 +121,16 @@ class DockingConfig(RealismOptions, TaskOptions):
         )
 
 
+def config_or_default(config: DockingConfig | None) -> DockingConfig:
+    """``config``, or the paper's constants for ``None``; a one-line ``TypeError`` for
+    anything else (a path or a dict is not a config)."""
+    if config is None:
+        return DockingConfig()
+    if not isinstance(config, DockingConfig):
+        raise TypeError(f"config must be a DockingConfig, got {type(config).__name__}")
+    return config
+
+
 def retuned_gains(kp, ki, kd, linear_damping, gain_scale=1.0, response_time_scale=1.0):
     """PID gains ``(kp, ki, kd)`` (numbers or tensors) scaled by ``gain_scale`` after being
     retuned so that the linear closed loop of eq. 37 with damping ``linear_damping`` runs

@@ -8,8 +8,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
-from dockingrl.env.checks import check_finite, checked_seed, validated_action
-from dockingrl.env.config import DockingConfig
+from dockingrl.env.checks import available_device, check_finite, checked_seed, validated_action
+from dockingrl.env.config import DockingConfig, config_or_default
 from dockingrl.env.dynamics import noisy_observation, observation_from_state
 from dockingrl.env.realism_env import RealismMixin
 from dockingrl.env.reward import (
@@ -151,10 +151,8 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
         if num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         num_envs = int(num_envs)
-        if config is None:
-            config = DockingConfig()
-        if not isinstance(config, DockingConfig):
-            raise TypeError(f"config must be a DockingConfig, got {type(config).__name__}")
+        config = config_or_default(config)
+        available_device(str(device))
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = num_envs
         self.config = config

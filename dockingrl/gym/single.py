@@ -22,6 +22,7 @@ from gymnasium import spaces
 from torchrl.envs import TransformedEnv
 
 from dockingrl.env import DockingConfig
+from dockingrl.env.config import config_or_default
 from dockingrl.env.gym_env import PAPER_TASK_ONLY, DockingGymEnv, reading_bounds
 from dockingrl.scenarios import make_env, observation_layout
 from dockingrl.transforms import EKFTransform
@@ -54,7 +55,7 @@ def scenario_pipeline(
     ``lateral_current_fraction``, ``near_start_fraction``; ``None`` keeps ``config``'s).
     ``filter_params``, ``ekf_kwargs``, ``observe_current``, ``observe_command`` and
     ``compile`` are :func:`dockingrl.make_env`'s."""
-    config = (config or DockingConfig()).scale_usbl_noise(range_noise_scale, bearing_noise_scale)
+    config = config_or_default(config).scale_usbl_noise(range_noise_scale, bearing_noise_scale)
     draws = {
         "following_current_fraction": following_current_fraction,
         "lateral_current_fraction": lateral_current_fraction,

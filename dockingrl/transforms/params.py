@@ -80,8 +80,13 @@ def load_filter_params(transform, source: str | Path | Mapping, *, name: str | N
         if found != FORMAT:
             raise ArtifactError(f"{name}: not dockingrl filter parameters ({FORMAT}): {found!r}")
         require_keys(name, payload, WHAT, KEYS)
-    else:
+    elif isinstance(source, (str, Path)):
         payload = read_filter_params(source)
+    else:
+        raise TypeError(
+            "filter_params must be a file path or the payload read from one, got "
+            f"{type(source).__name__}"
+        )
         name = name or str(source)
     for key in ("process_noise", "measurement_noise", "noise_context"):
         require_finite(name, key, payload[key])
