@@ -344,7 +344,16 @@ class OnboardPolicy(nn.Module):
 
     def _check(self, value, name: str, size: int) -> torch.Tensor:
         param = next(self.step.actor.parameters())
-        value = torch.as_tensor(value, dtype=param.dtype, device=param.device)
+        try:
+            value = torch.as_tensor(value)
+        except (TypeError, ValueError, RuntimeError):
+            raise ValueError(
+                f"{name} must be real numbers of shape ({size},) or (vehicles, {size}), "
+                f"got {type(value).__name__}"
+            ) from None
+        if value.dtype == torch.bool or value.is_complex():
+            raise ValueError(f"{name} must be real numbers, got dtype {value.dtype}")
+        value = value.to(dtype=param.dtype, device=param.device)
         if value.shape[-1:] != (size,) or value.dim() > 2:
             raise ValueError(
                 f"{name} must be ({size},) or (vehicles, {size}), got shape {tuple(value.shape)}"

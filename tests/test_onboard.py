@@ -129,6 +129,12 @@ def test_onboard_policy_refuses_bad_readings():
         policy.act(torch.zeros(5), torch.zeros(2))
     with pytest.raises(ValueError, match="finite"):
         policy.act(torch.tensor([1.0, 0, 0, 0, 0, float("nan")]), torch.zeros(2))
+    with pytest.raises(ValueError, match="z must be real numbers, got dtype torch.bool"):
+        policy.act(torch.ones(6, dtype=torch.bool), torch.zeros(2))
+    with pytest.raises(ValueError, match="current must be real numbers, got dtype torch.complex"):
+        policy.act(torch.zeros(6), torch.zeros(2, dtype=torch.complex64))
+    with pytest.raises(ValueError, match=r"z must be real numbers of shape \(6,\) .*, got str"):
+        policy.act("abc", torch.zeros(2))
     policy.act(torch.tensor([20.0, 0, 0, 0, 0, 0]), torch.zeros(2))
     with pytest.raises(ValueError, match="reset"):
         policy.act(torch.zeros(3, 6), torch.zeros(3, 2))
