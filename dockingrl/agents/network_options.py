@@ -38,5 +38,5 @@ class NetworkOptions:
             refuse(
                 self,
                 "mirror_symmetric",
-                f"valid: {', '.join(MIRROR_SYMMETRIC)} (got {self.mirror_symmetric!r})",
+                f"valid: {', '.join(MIRROR_SYMMETRIC)}",
             )
