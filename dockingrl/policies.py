@@ -28,7 +28,7 @@ def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
 
         return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}, {}
     if not Path(spec).exists():
-        raise FileNotFoundError(f"--policy {spec!r} is neither 'managed_surge' nor a file")
+        raise FileNotFoundError(f"policy {spec!r}: neither 'managed_surge' nor a file")
     from dockingrl.agents.saving import load_policy as load_saved
     from dockingrl.agents.saving import pipeline_options
 
