@@ -37,6 +37,9 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     leaves either the old file or the new one, never half of one. The file gets the mode a
     plain ``open`` would give it (``0o666`` less the umask)."""
     path = Path(path)
+    blocker = file_in_the_way(path.parent)
+    if blocker is not None:
+        raise NotADirectoryError(f"{path}: cannot be written ({blocker} is a file)")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
     try:

@@ -126,6 +126,15 @@ def test_atomic_write_gives_files_the_umask_mode(tmp_path, umask):
     assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
 
 
+def test_atomic_write_under_a_file_names_the_file_in_the_way(tmp_path):
+    (tmp_path / "afile").write_text("kept")
+    target = tmp_path / "afile" / "out" / "eval.json"
+    with pytest.raises(NotADirectoryError) as info:
+        atomic_write(target, lambda tmp: tmp.write_text("{}"))
+    assert str(info.value) == f"{target}: cannot be written ({tmp_path / 'afile'} is a file)"
+    assert (tmp_path / "afile").read_text() == "kept"
+
+
 def test_payloads_that_would_not_load_weights_only_are_not_written(tmp_path):
     with pytest.raises(TypeError, match="weights-only"):
         save_artifact(tmp_path / "x.pt", {"format": "f", "obj": Marker(tmp_path / "m")})
