@@ -152,6 +152,8 @@ def test_a_compound_policy_in_the_noise_scenario_says_both_layouts(capsys, compo
     # an unknown kind (before it runs any episode)
     line = fails(capsys, [*argv, "--scenario", "compound", "--video", "clip.avi"], 2)
     assert "--video clip.avi: the suffix must be one of .gif, .mp4" in line
+    line = fails(capsys, [*argv, "--scenario", "compound", "--video-episodes", "5"], 2)
+    assert "--video-episodes applies to a --video only" in line
 
 
 def test_a_policy_whose_actor_does_not_read_its_layout_is_refused(tmp_path, capsys):
@@ -320,6 +322,9 @@ def test_table_names_a_missing_folder_and_a_damaged_file(tmp_path, capsys):
 
     line = fails(capsys, ["table", str(tmp_path / "typo"), "--out", str(tmp_path / "t")], 1)
     assert f"{tmp_path / 'typo'}: no such run folder" in line
+    (tmp_path / "afile").write_text("")
+    line = fails(capsys, ["table", str(tmp_path / "afile"), "--out", str(tmp_path / "t")], 1)
+    assert f"{tmp_path / 'afile'}: a file, not a run folder" in line
     run = fake_run(tmp_path, "ppo", "ppo", "noise", 0, 50.0)
     (run / "config.json").write_text("[1]")
     line = fails(capsys, ["table", str(run), "--out", str(tmp_path / "t")], 1)

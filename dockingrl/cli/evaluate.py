@@ -24,6 +24,9 @@ from dockingrl.policies import FIGURE_10_CASES, evaluation_world
 from dockingrl.provenance import command_line, footer_text
 from dockingrl.scenarios import SCENARIOS, mirror_signs
 
+#: episodes drawn in a ``--video`` unless ``--video-episodes`` says otherwise
+VIDEO_EPISODES = 3
+
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """``dockingrl eval``: a policy's evaluation, success map, trajectories and video."""
@@ -53,6 +56,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(taken)
     env_kwargs = {"device": args.device, **options, **world}
     out = Path(args.out) if args.out else None
+    if args.video_episodes is not None and not args.video:
+        raise UsageError("--video-episodes applies to a --video only")
     if args.video:
         from dockingrl.render import VIDEO_SUFFIXES
 
@@ -122,7 +127,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
         from dockingrl.render import write_video
 
         video = write_video(
-            policy, scenario, args.video, episodes=args.video_episodes, seed=args.seed, **env_kwargs
+            policy,
+            scenario,
+            args.video,
+            episodes=args.video_episodes or VIDEO_EPISODES,
+            seed=args.seed,
+            **env_kwargs,
         )
         print(f"video: {video}")
     wall = time.perf_counter() - start
@@ -195,7 +205,10 @@ def add_evaluation_commands(sub) -> None:
         help="also a GIF (.gif) or MP4 (.mp4) of --video-episodes episodes, drawn as Figure 10",
     )
     ev.add_argument(
-        "--video-episodes", type=COUNT, default=3, help="episodes in the --video (default 3)"
+        "--video-episodes",
+        type=COUNT,
+        default=None,
+        help=f"episodes in the --video (default {VIDEO_EPISODES})",
     )
     ev.add_argument(
         "--use-filter",

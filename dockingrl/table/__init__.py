@@ -46,7 +46,8 @@ def _read(run_dir: Path) -> dict | None:
     folder whose run has not finished (no ``summary.json`` or ``eval.json`` yet). A folder that
     does not exist, or a file that is not what a run writes, is a one-line ``ValueError``."""
     if not run_dir.is_dir():
-        raise ValueError(f"{run_dir}: no such run folder")
+        what = "a file, not a run folder" if run_dir.exists() else "no such run folder"
+        raise ValueError(f"{run_dir}: {what}")
     run: dict = {}
     for name, keys in _REQUIRED.items():
         path = run_dir / f"{name}.json"
