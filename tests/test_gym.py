@@ -410,6 +410,10 @@ def test_sb3_vec_env_reports_episode_ends():
     from dockingrl.gym.sb3 import SB3VecEnv
 
     env = SB3VecEnv(4, "noise", config=DockingConfig(max_steps=3))
+    with pytest.raises(ValueError, match=r"seed must be an integer in \[0, 2\*\*63\), got -1"):
+        env.seed(-1)
+    with pytest.raises(TypeError, match="seed must be an integer, got float"):
+        env.seed(1.5)
     env.seed(7)
     first = env.reset()
     again = SB3VecEnv(4, "noise", config=DockingConfig(max_steps=3))

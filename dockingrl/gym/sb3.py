@@ -10,6 +10,7 @@ import torch
 from stable_baselines3.common.vec_env import VecEnv
 from tensordict import TensorDictBase
 
+from dockingrl.env.checks import checked_seed
 from dockingrl.gym.vector import DockingVectorEnv
 
 
@@ -37,6 +38,11 @@ class SB3VecEnv(VecEnv):
             self.env.num_envs, self.env.single_observation_space, self.env.single_action_space
         )
         self._pending: np.ndarray | None = None
+
+    def seed(self, seed: int | None = None):
+        """SB3's ``seed``, with the seed checked now (one line) rather than at the next
+        ``reset()``."""
+        return super().seed(None if seed is None else checked_seed(seed))
 
     def reset(self) -> np.ndarray:
         observation, _ = self.env.reset(seed=self._seeds[0])
