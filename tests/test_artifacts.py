@@ -258,6 +258,19 @@ BAD_POLICIES = {
         "does not rebuild a ppo actor (Error(s) in loading state_dict for ProbabilisticActor: "
         "size mismatch",
     ),
+    "integer weights": (
+        lambda p, payload: save_artifact(
+            p,
+            {
+                **payload,
+                "state_dict": {
+                    k: v.long() if i == 0 else v
+                    for i, (k, v) in enumerate(payload["state_dict"].items())
+                },
+            },
+        ),
+        "weights that are not floating point: ",
+    ),
     # hand-edited payloads re-saved whole: refused as training would refuse them
     "config field of the wrong type": (
         lambda p, payload: save_artifact(

@@ -229,6 +229,14 @@ def _rebuild(path, payload: dict) -> torch.nn.Module:
     from dockingrl.agents.networks import build_actor
 
     config = dict(payload["config"])
+    if isinstance(payload["state_dict"], Mapping):
+        odd = sorted(
+            f"{name} ({value.dtype})"
+            for name, value in payload["state_dict"].items()
+            if isinstance(value, torch.Tensor) and not value.is_floating_point()
+        )
+        if odd:
+            raise ArtifactError(f"{path}: weights that are not floating point: {', '.join(odd)}")
     try:
         config["hidden"] = tuple(config["hidden"])
         cfg = CONFIGS[payload["algo"]](**config)
