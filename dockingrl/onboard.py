@@ -36,12 +36,14 @@ from dockingrl.env.realism import SENSORS
 from dockingrl.scenarios import (
     FILTERED_OBSERVATION_KEYS,
     SCENARIOS,
+    layout_options,
     make_env,
     make_filter,
     observation_layout,
 )
 from dockingrl.transforms.ekf import STATE_DIM
 from dockingrl.transforms.repeat import check_action_repeat
+from dockingrl.transforms.uncertainty import position_std
 
 OBS_DIM = 6
 
@@ -50,9 +52,9 @@ def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
     """Check that the saved policy of ``info`` (from
     :func:`~dockingrl.agents.saving.load_policy`) reads what the env of ``scenario`` built by
     :func:`~dockingrl.make_env` with ``options`` (``observe_current``, ``observe_command``,
-    ``action_repeat``) gives: :func:`~dockingrl.agents.saving.check_layout` against that env's
-    observation spec. Raises :class:`~dockingrl.io.ArtifactError`, one line saying what
-    differs."""
+    ``observe_filter_std``, ``action_repeat``) gives:
+    :func:`~dockingrl.agents.saving.check_layout` against that env's observation spec.
+    Raises :class:`~dockingrl.io.ArtifactError`, one line saying what differs."""
     from dockingrl.agents.saving import check_layout
 
     env = make_env(scenario, 1, **options)
@@ -60,8 +62,7 @@ def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
         info,
         scenario,
         env.observation_spec["observation"].shape[-1],
-        observe_current=bool(options.get("observe_current")),
-        observe_command=bool(options.get("observe_command")),
+        **layout_options(options),
         action_repeat=options.get("action_repeat", 1),
     )
 
@@ -85,29 +86,30 @@ class OnboardStep(nn.Module):
     ``ekf_usbl_history``). With ``action_repeat = k > 1`` (a policy trained with
     ``--action-repeat k``) the actor's command is taken on the approach's steps ``0, k, 2k,
     ...`` and held in between, as the training env held it
-    (:class:`~dockingrl.transforms.ActionRepeat`). With ``observe_command`` the actor also reads
-    ``command`` (zeros on an approach's first step), as the training env's
-    :class:`~dockingrl.transforms.PreviousAction` gave it. The command returned is clipped to
-    ``config``'s bounds (eq. 3), as the env applies it."""
+    (:class:`~dockingrl.transforms.ActionRepeat`). ``observe`` (the options of
+    :func:`~dockingrl.scenarios.observation_layout`) adds to what the actor reads: the
+    ``current``; the previous ``command`` (zeros on an approach's first step, as
+    :class:`~dockingrl.transforms.PreviousAction` gives it); the standard deviations of the
+    filter's ``x`` and ``y`` after this step's update (:class:`~dockingrl.transforms.uncertainty.
+    FilterStd`). The command returned is clipped to ``config``'s bounds (eq. 3), as the env
+    applies it."""
 
     def __init__(
         self,
         actor: nn.Module,
         scenario: str,
         ekf,
-        observe_current: bool,
+        *,
         action_repeat: int = 1,
-        observe_command: bool = False,
         config: DockingConfig | None = None,
+        **observe: bool,
     ) -> None:
         super().__init__()
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
         config = config or DockingConfig()
         self.register_buffer("action_low", torch.tensor(config.action_low))
         self.register_buffer("action_high", torch.tensor(config.action_high))
-        self.layout = observation_layout(
-            scenario, observe_current=observe_current, observe_command=observe_command
-        )
+        self.layout = observation_layout(scenario, **observe)
         self.action_repeat = check_action_repeat(action_repeat)
 
     @property
@@ -130,6 +132,7 @@ class OnboardStep(nn.Module):
             mean, cov, parts["filtered_observation"], age, history = self._filter(
                 z, current, mean, cov, command, age, sensor_age, history
             )
+            parts["filter_std"] = position_std(cov)
         else:
             age = torch.where(age < 0, torch.zeros_like(age), age + 1)
         parts["previous_action"] = torch.where(age == 0, torch.zeros_like(command), command)
@@ -173,6 +176,8 @@ class OnboardPolicy(nn.Module):
             ``None``: Tables 1-2.
         observe_current: the actor also reads the current (``--observe-current``).
         observe_command: the actor also reads its previous command (``--observe-command``).
+        observe_filter_std: the actor also reads the filter's position uncertainty
+            (``--observe-filter-std``).
         action_repeat: the actor decides every this many steps and its command is held in
             between (``--action-repeat``).
         config: the env config whose step length and command bounds the filter assumes.
@@ -192,6 +197,7 @@ class OnboardPolicy(nn.Module):
         filter_params: str | Path | None = None,
         observe_current: bool = False,
         observe_command: bool = False,
+        observe_filter_std: bool = False,
         action_repeat: int = 1,
         config: DockingConfig | None = None,
         compensate_latency: bool = False,
@@ -223,8 +229,10 @@ class OnboardPolicy(nn.Module):
             )
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
+        observe = {"observe_current": observe_current, "observe_command": observe_command}
+        observe["observe_filter_std"] = observe_filter_std
         self.step = OnboardStep(
-            actor, scenario, ekf, observe_current, action_repeat, observe_command, config
+            actor, scenario, ekf, action_repeat=action_repeat, config=config, **observe
         )
         # mean, cov, command, age and, with latency compensation, the history
         self._state: tuple[torch.Tensor, ...] | None = None
@@ -238,9 +246,9 @@ class OnboardPolicy(nn.Module):
         device: torch.device | str = "cpu",
         config: DockingConfig | None = None,
     ) -> OnboardPolicy:
-        """Load a policy saved by training (``policy.pt``); its scenario, its
-        ``--observe-current``, ``--observe-command`` and ``--action-repeat`` and, unless
-        ``filter_params`` is given, its training ``--filter-params`` come with it
+        """Load a policy saved by training (``policy.pt``); its scenario, its ``--observe-*``
+        and ``--action-repeat`` and, unless ``filter_params`` is given, its training
+        ``--filter-params`` come with it
         (``filter_params="none"``: Table 1's hand-tuned filter instead).
         ``config`` describes the vehicle (default: the paper's): with a policy trained with
         ``--compensate-latency`` the filter compensates ``config``'s USBL latency, not the

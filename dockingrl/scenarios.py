@@ -14,6 +14,7 @@ from dockingrl.env.config import config_or_default
 from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform, PreviousAction
 from dockingrl.transforms.current_filter import CurrentEstimatingEKF
 from dockingrl.transforms.repeat import check_action_repeat
+from dockingrl.transforms.uncertainty import FilterStd
 
 #: scenario name -> what the policy reads as ``observation`` (number of entries)
 SCENARIOS = {
@@ -42,23 +43,46 @@ MIRROR_STATE = (1.0, -1.0, -1.0, 1.0, -1.0)
 OBSERVATION_PARTS = {
     "observation": MIRROR_OBSERVATION,  # the reading, eq. 2 (raw, or true in ``no_noise``)
     "filtered_observation": MIRROR_OBSERVATION,  # h(EKF estimate), eq. 34
+    "filter_std": (1.0, 1.0),  # ``observe_filter_std``: the estimate's std of x and y
     "ocean_current": MIRROR_PAIR,  # ``observe_current``
     "previous_action": MIRROR_PAIR,  # ``observe_command``
 }
 
 
+#: the :func:`make_env` options that add entries to the policy's ``observation``
+OBSERVATION_OPTIONS = ("observe_filter_std", "observe_current", "observe_command")
+
+
+def layout_options(options: Mapping) -> dict[str, bool]:
+    """The :data:`OBSERVATION_OPTIONS` of ``options`` (a dict of :func:`make_env` options or a
+    training config's), each ``True`` or ``False``: the keyword arguments of
+    :func:`observation_layout` and :func:`mirror_signs`."""
+    return {name: bool(options.get(name)) for name in OBSERVATION_OPTIONS}
+
+
 def observation_layout(
-    scenario: str, *, observe_current: bool = False, observe_command: bool = False
+    scenario: str,
+    *,
+    observe_current: bool = False,
+    observe_command: bool = False,
+    observe_filter_std: bool = False,
 ) -> tuple[str, ...]:
     """The entries the policy's ``observation`` concatenates, in order, for ``scenario`` with
     the options of :func:`make_env`: the scenario's own (``FILTERED_OBSERVATION_KEYS``, or the
-    reading alone), then the current, then the previous command. :func:`make_env`,
-    :func:`mirror_signs` and :class:`dockingrl.onboard.OnboardStep` all read it."""
+    reading alone), then the filter's position uncertainty, then the current, then the previous
+    command. :func:`make_env`, :func:`mirror_signs` and :class:`dockingrl.onboard.OnboardStep`
+    all read it."""
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
+    if observe_filter_std and scenario not in FILTERED_OBSERVATION_KEYS:
+        raise ValueError(
+            f"observe_filter_std needs a scenario with the EKF "
+            f"({', '.join(FILTERED_OBSERVATION_KEYS)}), not {scenario!r}"
+        )
     keys = FILTERED_OBSERVATION_KEYS.get(scenario, ("observation",))
     return (
         keys
+        + (("filter_std",) if observe_filter_std else ())
         + (("ocean_current",) if observe_current else ())
         + (("previous_action",) if observe_command else ())
     )
@@ -70,11 +94,10 @@ def observation_size(keys) -> int:
     return sum(len(OBSERVATION_PARTS[key]) for key in keys)
 
 
-def mirror_signs(
-    scenario: str, *, observe_current: bool = False, observe_command: bool = False
-) -> torch.Tensor:
-    """The signs that mirror the policy's ``observation`` of ``scenario`` (with the options
-    of :func:`make_env`) through the docking axis, ``y -> -y``.
+def mirror_signs(scenario: str, **options: bool) -> torch.Tensor:
+    """The signs that mirror the policy's ``observation`` of ``scenario`` (with the
+    :data:`OBSERVATION_OPTIONS` of :func:`make_env`, as :func:`observation_layout` takes them)
+    through the docking axis, ``y -> -y``.
 
     The task is symmetric under that mirror: with heading, sway, yaw rate, turn command and
     ``oc_y`` negated, the dynamics (eqs. 36-38), the sensor noise (Table 2, zero-mean and
@@ -82,9 +105,7 @@ def mirror_signs(
     (Sec. 4.1) and the reward (eqs. 4-12: ``e_alpha`` and ``y`` change sign together) are all
     unchanged. So a transition mirrored entry by entry (observations by these signs, the action
     by ``MIRROR_PAIR``, reward and flags as they are) is a transition of the same task."""
-    layout = observation_layout(
-        scenario, observe_current=observe_current, observe_command=observe_command
-    )
+    layout = observation_layout(scenario, **options)
     return torch.tensor([sign for key in layout for sign in OBSERVATION_PARTS[key]])
 
 
@@ -147,6 +168,7 @@ def make_env(
     compile: bool = False,
     observe_current: bool = False,
     observe_command: bool = False,
+    observe_filter_std: bool = False,
     action_repeat: int = 1,
 ) -> TransformedEnv:
     """Build one of the paper's four scenarios (Sec. 4) as a ``TransformedEnv``.
@@ -180,13 +202,21 @@ def make_env(
             (+2 entries, last, after the current's). Not in the paper: the vehicle knows
             what it commanded, and with it the ground velocity tells its own speed through
             the water from the current's drift.
+        observe_filter_std: append the standard deviations (m) of the EKF's ``x`` and ``y``
+            (:class:`~dockingrl.transforms.uncertainty.FilterStd`) to ``observation`` (+2
+            entries, after the scenario's; ``filtered`` and ``compound`` only). Not in the
+            paper: with slow, late or lost fixes (docs/realism.md) it tells the policy how
+            far its estimate may be off.
         action_repeat: hold each action for this many steps of ``dt``
             (:class:`~dockingrl.transforms.ActionRepeat`, not in the paper): one env step is
             then ``action_repeat`` simulation steps, with their rewards summed. Placed before
             ``transforms``.
     """
     layout = observation_layout(
-        scenario, observe_current=observe_current, observe_command=observe_command
+        scenario,
+        observe_current=observe_current,
+        observe_command=observe_command,
+        observe_filter_std=observe_filter_std,
     )
     config = config_or_default(config).replace(noise=scenario != "no_noise")
     base = DockingEnv(num_envs, config=config, device=device, seed=seed, compile_step=compile)
@@ -196,6 +226,8 @@ def make_env(
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
         stages.append(ekf)
+        if observe_filter_std:
+            stages.append(FilterStd(cov_key=ekf.cov_key))
     elif filter_params is not None or ekf_kwargs:
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
     if observe_command:

@@ -32,8 +32,8 @@ SHARED = (
     "following_current_fraction lateral_current_fraction near_start_fraction train_level "
     "train_curriculum miss_penalty_floor passed_station_penalty time_budget_s keep_best "
     "keep_candidates select_episodes actor_average observe_current observe_command "
-    "mirror_symmetric action_repeat fast_update compensate_latency estimate_current "
-    "filter_gate init_from init_replay algo recipe"
+    "observe_filter_std mirror_symmetric action_repeat fast_update compensate_latency "
+    "estimate_current filter_gate init_from init_replay algo recipe"
 ).split()
 OFF_POLICY = (
     "batch_size gamma lr lr_schedule buffer_size start_steps tau updates_per_step "

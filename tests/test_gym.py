@@ -71,6 +71,7 @@ def test_same_numbers_with_every_option(tmp_path):
     options = dict(
         observe_current=True,
         observe_command=True,
+        observe_filter_std=True,
         filter_params=str(tmp_path / "filter.pt"),
     )
     env = gymnasium.make(
@@ -93,7 +94,7 @@ def test_same_numbers_with_every_option(tmp_path):
         )
     )
     reference = make_env("compound", 1, seed=3, config=config, **options)
-    assert env.observation_space.shape == (16,)
+    assert env.observation_space.shape == (18,)
     _step_for_step(env, reference, 3, 160)
     obs, info = env.reset(seed=4)
     assert info["true_state"][0] > -8.5  # the near start box

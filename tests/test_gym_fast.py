@@ -107,7 +107,11 @@ def test_fast_env_follows_the_tensor_env_step_for_step(scenario):
     short = DockingConfig(max_steps=60)
     options = {}
     if scenario == "filtered":  # and R's range from the estimate, not the measurement
-        options = {"observe_command": True, "ekf_kwargs": {"range_noise_from": "estimate"}}
+        options = {
+            "observe_command": True,
+            "observe_filter_std": True,
+            "ekf_kwargs": {"range_noise_from": "estimate"},
+        }
     env = gymnasium.make(ID, scenario=scenario, config=short, fast=True, **options)
     reference = gymnasium.make(ID, scenario=scenario, config=short, **options)
     obs, info = env.reset(seed=7)

@@ -50,6 +50,7 @@ TRAIN_FIELDS = (
     "actor_average",
     "observe_current",
     "observe_command",
+    "observe_filter_std",
     "mirror_symmetric",
     "action_repeat",
     "fast_update",

@@ -89,7 +89,10 @@ def symmetric(net: nn.Module, in_signs: torch.Tensor | None, out_signs) -> nn.Mo
 def config_mirror_signs(cfg: WorldOptions) -> torch.Tensor:
     """:func:`~dockingrl.scenarios.mirror_signs` of the observation ``cfg``'s policy reads."""
     return mirror_signs(
-        cfg.scenario, observe_current=cfg.observe_current, observe_command=cfg.observe_command
+        cfg.scenario,
+        observe_current=cfg.observe_current,
+        observe_command=cfg.observe_command,
+        observe_filter_std=cfg.observe_filter_std,
     )
 
 

@@ -21,7 +21,13 @@ from dockingrl.io import (
     require_keys,
     save_artifact,
 )
-from dockingrl.scenarios import SCENARIOS, observation_layout, observation_size
+from dockingrl.scenarios import (
+    OBSERVATION_OPTIONS,
+    SCENARIOS,
+    layout_options,
+    observation_layout,
+    observation_size,
+)
 
 FORMAT = "dockingrl.policy/2"
 #: version 1 had no content hash and no ``observation_layout``
@@ -45,7 +51,8 @@ KEYS = (
 def pipeline_options(config: Mapping) -> dict:
     """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (as a
     dict, e.g. a saved policy's ``config``) fixes for whatever runs its policy:
-    ``observe_current``, ``observe_command``, ``action_repeat`` and the filter's
+    ``observe_current``, ``observe_command``, ``observe_filter_std``, ``action_repeat`` and the
+    filter's
     ``compensate_latency``, ``estimate_current`` and ``filter_gate`` (as ``ekf_kwargs``), where
     they differ
     from the paper's. Training,
@@ -57,10 +64,9 @@ def pipeline_options(config: Mapping) -> dict:
         ekf_kwargs["gate"] = float(config["filter_gate"])
     if ekf_kwargs:
         options["ekf_kwargs"] = ekf_kwargs
-    if config.get("observe_current"):
-        options["observe_current"] = True
-    if config.get("observe_command"):
-        options["observe_command"] = True
+    for name in OBSERVATION_OPTIONS:
+        if config.get(name):
+            options[name] = True
     if config.get("action_repeat", 1) != 1:
         options["action_repeat"] = config["action_repeat"]
     return options
@@ -71,11 +77,7 @@ def policy_layout(scenario: str, obs_dim: int, config: Mapping) -> dict:
     entries of its observation (:func:`~dockingrl.scenarios.observation_layout` with the
     options of its training ``config``, a dict), ``obs_dim`` and ``action_repeat``."""
     options = pipeline_options(config)
-    keys = observation_layout(
-        scenario,
-        observe_current=bool(options.get("observe_current")),
-        observe_command=bool(options.get("observe_command")),
-    )
+    keys = observation_layout(scenario, **layout_options(options))
     return {
         "scenario": scenario,
         "keys": list(keys),
@@ -259,6 +261,7 @@ def check_layout(
     *,
     observe_current: bool = False,
     observe_command: bool = False,
+    observe_filter_std: bool = False,
     action_repeat: int | None = None,
 ) -> None:
     """Check that an env of ``scenario`` built with these :func:`~dockingrl.make_env` options,
@@ -269,7 +272,10 @@ def check_layout(
     :class:`~dockingrl.io.ArtifactError` with one line saying what differs."""
     trained = info["observation_layout"]
     keys = observation_layout(
-        scenario, observe_current=observe_current, observe_command=observe_command
+        scenario,
+        observe_current=observe_current,
+        observe_command=observe_command,
+        observe_filter_std=observe_filter_std,
     )
     given = {
         "scenario": scenario,

@@ -89,6 +89,11 @@ class WorldOptions:
         "after the current's (zeros at an episode's start; not in the paper)",
         default=False,
     )
+    observe_filter_std: bool = documented(
+        "append the standard deviations of the EKF's x and y (m) to the policy's observation, "
+        "after the scenario's entries (filtered and compound only; not in the paper)",
+        default=False,
+    )
     action_repeat: int = documented(
         "hold each action for this many env steps of 0.2 s (1: the paper's; not in the "
         "paper); total_steps, eval_every, start_steps and updates_per_step still count env "
@@ -117,7 +122,7 @@ class WorldOptions:
                 "lateral_current_fraction",
                 "near_start_fraction",
             ),
-            flags=("compensate_latency", "estimate_current"),
+            flags=("compensate_latency", "estimate_current", "observe_filter_std"),
         )
         for name, sigma in (
             ("range_noise_scale", "range_noise_fraction"),
@@ -130,6 +135,6 @@ class WorldOptions:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
         if not (0.0 <= self.filter_gate < math.inf):
             refuse(self, "filter_gate", "must be a chi-square threshold > 0, or 0 for no gate")
-        for name in ("compensate_latency", "estimate_current", "filter_gate"):
+        for name in ("compensate_latency", "estimate_current", "filter_gate", "observe_filter_std"):
             if getattr(self, name) and self.scenario not in FILTERED_OBSERVATION_KEYS:
                 refuse(self, name, f"scenario {self.scenario!r} has no filter")

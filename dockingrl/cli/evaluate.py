@@ -22,7 +22,7 @@ from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
 from dockingrl.io import write_json
 from dockingrl.policies import FIGURE_10_CASES, evaluation_world
 from dockingrl.provenance import command_line, footer_text
-from dockingrl.scenarios import SCENARIOS, mirror_signs
+from dockingrl.scenarios import SCENARIOS, layout_options, mirror_signs
 
 #: episodes drawn in a ``--video`` unless ``--video-episodes`` says otherwise
 VIDEO_EPISODES = 3
@@ -42,8 +42,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             raise UsageError("--mirrored needs a saved agent (--policy PATH)")
         from dockingrl.agents import MirroredPolicy
 
-        flags = {k: bool(options.get(k)) for k in ("observe_current", "observe_command")}
-        policy, name = MirroredPolicy(policy, mirror_signs(scenario, **flags)), f"{name} mirrored"
+        signs = mirror_signs(scenario, **layout_options(options))
+        policy, name = MirroredPolicy(policy, signs), f"{name} mirrored"
     world, taken = evaluation_world(
         scenario,
         trained,

@@ -24,9 +24,10 @@ from torchrl.envs import TransformedEnv
 from dockingrl.env import DockingConfig
 from dockingrl.env.config import config_or_default
 from dockingrl.env.gym_env import PAPER_TASK_ONLY, DockingGymEnv, reading_bounds
-from dockingrl.scenarios import make_env, observation_layout
+from dockingrl.scenarios import layout_options, make_env, observation_layout
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.ekf import filter_entries, measurement_function, measurement_noise_std
+from dockingrl.transforms.uncertainty import position_std
 
 
 def scenario_pipeline(
@@ -42,6 +43,7 @@ def scenario_pipeline(
     ekf_kwargs: dict | None = None,
     observe_current: bool = False,
     observe_command: bool = False,
+    observe_filter_std: bool = False,
     following_current_fraction: float | None = None,
     lateral_current_fraction: float | None = None,
     near_start_fraction: float | None = None,
@@ -53,8 +55,8 @@ def scenario_pipeline(
     ``bearing_noise_scale`` (:meth:`DockingConfig.scale_usbl_noise`, as ``dockingrl train``'s
     options of the same names) and the training draws given (``following_current_fraction``,
     ``lateral_current_fraction``, ``near_start_fraction``; ``None`` keeps ``config``'s).
-    ``filter_params``, ``ekf_kwargs``, ``observe_current``, ``observe_command`` and
-    ``compile`` are :func:`dockingrl.make_env`'s."""
+    ``filter_params``, ``ekf_kwargs``, ``observe_current``, ``observe_command``,
+    ``observe_filter_std`` and ``compile`` are :func:`dockingrl.make_env`'s."""
     config = config_or_default(config).scale_usbl_noise(range_noise_scale, bearing_noise_scale)
     draws = {
         "following_current_fraction": following_current_fraction,
@@ -73,6 +75,7 @@ def scenario_pipeline(
         compile=compile,
         observe_current=observe_current,
         observe_command=observe_command,
+        observe_filter_std=observe_filter_std,
     )
 
 
@@ -93,8 +96,8 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
     """The float32 box of the policy's observation with entries ``layout``
     (:func:`dockingrl.scenarios.observation_layout`): readings as
     :func:`~dockingrl.env.gym_env.reading_bounds`, the current within ``ocean_current_range``
-    (one float32 step wider, as it is drawn in float32) and the previous command within the
-    action bounds."""
+    (one float32 step wider, as it is drawn in float32), the previous command within the
+    action bounds and the filter's standard deviations at 0 or more."""
     lows, highs = [], []
     for key in layout:
         if key in ("observation", "filtered_observation"):
@@ -109,6 +112,8 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
         elif key == "previous_action":
             low = np.array(config.action_low, dtype=np.float32)
             high = np.array(config.action_high, dtype=np.float32)
+        elif key == "filter_std":
+            low, high = np.zeros(2, dtype=np.float32), np.full(2, np.inf, dtype=np.float32)
         else:
             raise ValueError(f"unknown observation entry {key!r}")
         lows.append(low)
@@ -158,7 +163,7 @@ class DockingScenarioEnv(DockingGymEnv):
             ``False`` gives the TorchRL pipeline's numbers bit for bit.
         options: :func:`scenario_pipeline`'s (``config``, ``range_noise_scale``,
             ``bearing_noise_scale``, ``filter_params``, ``ekf_kwargs``, ``observe_current``,
-            ``observe_command``, ``following_current_fraction``,
+            ``observe_command``, ``observe_filter_std``, ``following_current_fraction``,
             ``lateral_current_fraction``, ``near_start_fraction``).
     """
 
@@ -185,11 +190,7 @@ class DockingScenarioEnv(DockingGymEnv):
         super().__init__(simulator=pipeline.base_env, compile=compile, fast=fast)
         self.scenario = scenario
         self.render_mode = render_mode
-        self.layout = observation_layout(
-            scenario,
-            observe_current=bool(options.get("observe_current")),
-            observe_command=bool(options.get("observe_command")),
-        )
+        self.layout = observation_layout(scenario, **layout_options(options))
         self.observation_space = observation_space(self.layout, self.config)
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.config.dt)}
         self._ekf = ekf
@@ -212,6 +213,7 @@ class DockingScenarioEnv(DockingGymEnv):
             mean, cov = self._ekf.initial_estimate(z, current)
             self._extra = (mean, cov, torch.zeros(1, dtype=z.dtype))
             parts["filtered_observation"] = measurement_function(mean, current)
+            parts["filter_std"] = position_std(cov)
         return self._observation(parts)
 
     def _float_filter_constants(self) -> None:
@@ -254,6 +256,7 @@ class DockingScenarioEnv(DockingGymEnv):
             )
             self._filter_state = (mean, cov)
             parts["filtered_observation"] = filtered
+            parts["filter_std"] = (math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)))
         if len(self.layout) == 1:
             return parts[self.layout[0]]
         return tuple(value for key in self.layout for value in parts[key])
@@ -268,6 +271,7 @@ class DockingScenarioEnv(DockingGymEnv):
             )
             extra = (mean, cov, age + 1)
             parts["filtered_observation"] = filtered
+            parts["filter_std"] = position_std(cov)
         return state, extra, self._observation(parts), out
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -16,7 +16,7 @@ from torchrl.envs.utils import step_mdp
 from dockingrl.env.gym_env import action_space
 from dockingrl.env.specs import ACTION_DIM
 from dockingrl.gym.single import gym_pipeline, observation_space
-from dockingrl.scenarios import observation_layout
+from dockingrl.scenarios import layout_options, observation_layout
 
 #: per-env entries of ``info`` (every sub-env has each, so each ``_key`` mask is all True)
 INFO_KEYS = (
@@ -88,11 +88,7 @@ class DockingVectorEnv(VectorEnv):
         self.config = self.pipeline.base_env.config
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
-        layout = observation_layout(
-            scenario,
-            observe_current=bool(options.get("observe_current")),
-            observe_command=bool(options.get("observe_command")),
-        )
+        layout = observation_layout(scenario, **layout_options(options))
         self.single_observation_space = observation_space(layout, self.config)
         self.single_action_space = action_space(self.config)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

@@ -21,21 +21,26 @@ NETWORK_FIELDS = (
     "state_independent_scale",
     "observe_current",
     "observe_command",
+    "observe_filter_std",
 )
 
 
 def observation_width(config) -> int | None:
     """How many numbers the policy of a run with ``config`` (a config or its config.json's
     dict) reads, or ``None`` where it names no known scenario."""
-    from dockingrl.scenarios import SCENARIOS, observation_layout, observation_size
+    from dockingrl.scenarios import (
+        OBSERVATION_OPTIONS,
+        SCENARIOS,
+        layout_options,
+        observation_layout,
+        observation_size,
+    )
 
     get = config.get if isinstance(config, dict) else lambda k: getattr(config, k, None)
     if get("scenario") not in SCENARIOS:
         return None
     layout = observation_layout(
-        get("scenario"),
-        observe_current=bool(get("observe_current")),
-        observe_command=bool(get("observe_command")),
+        get("scenario"), **layout_options({k: get(k) for k in OBSERVATION_OPTIONS})
     )
     return observation_size(layout)
 

@@ -8,10 +8,11 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
-from torchrl.envs.transforms import Transform
+
+from dockingrl.transforms.entry import DerivedEntry
 
 
-class CompoundObservation(Transform):
+class CompoundObservation(DerivedEntry):
     """Concatenates observation entries in the given, fixed order (no sorting) into one key.
 
     The paper's compound observation (Sec. 3.5, Figure 3) is
@@ -33,13 +34,6 @@ class CompoundObservation(Transform):
         values = [next_tensordict.get(key) for key in self.in_keys]
         next_tensordict.set(self.out_keys[0], torch.cat(values, dim=-1))
         return next_tensordict
-
-    forward = _call
-
-    def _reset(
-        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
-    ) -> TensorDictBase:
-        return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         specs = [observation_spec[key] for key in self.in_keys]
