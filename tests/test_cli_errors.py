@@ -111,6 +111,8 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["train", "--algo", "ppo", "--threads", "0"], "PPOConfig.threads: must be >= 1"),
         (["train", "--algo", "sac", "--total-steps", "0"], "SACConfig.total_steps: must be"),
         (["train", "--algo", "sac", "--lr", "nan"], "SACConfig.lr: must be finite"),
+        (["train", "--algo", "sac", "--total-steps", "5000"], "--start-steps 10000 >= --total"),
+        (["train", "--recipe", "td3", "--total-steps", "100"], "never learn; give fewer"),
         (["train", "--recipe", "sac", "--epochs", "3"], "--epochs does not apply to sac"),
         (["train", "--recipe", "sac", "--preset", "fast"], "exclude each other"),
         (["train", "--total-steps", "256"], "--algo or --recipe is required"),
