@@ -112,3 +112,16 @@ def test_a_run_trained_with_it_carries_it_to_evaluation_and_the_onboard_policy(t
     assert options["observe_filter_std"] is True
     ladder = stress_ladder(policy, scenario, episodes=2, levels=("L1",), **options)
     assert ladder["levels"][0]["episodes"] == 2
+
+
+def test_the_networks_scale_the_ranges_only_whatever_the_options():
+    """With every option on the compound observation is 18 numbers: the ranges are entries 0
+    and 6, and the filter's standard deviations (12, 13) are left as they are."""
+    from dockingrl.agents.networks import config_observation_scale
+
+    options = {"observe_filter_std": True, "observe_current": True, "observe_command": True}
+    for scenario, width, ranges in (("compound", 18, [0, 6]), ("filtered", 12, [0])):
+        cfg = make_config("sac", "paper", scenario=scenario, normalize_observation=True, **options)
+        scale = config_observation_scale(cfg, width, 30.0)
+        assert (scale != 1).nonzero().flatten().tolist() == ranges
+        assert torch.allclose(scale[ranges], torch.tensor(1 / 30.0))

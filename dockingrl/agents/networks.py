@@ -4,6 +4,8 @@ Q-network (optionally privileged), the Tanh-Normal and the deterministic actors,
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from tensordict.nn import (
     AddStateIndependentNormalScale,
@@ -19,7 +21,13 @@ from dockingrl.agents.config import ACTIVATIONS, OffPolicyConfig, TrainConfig
 from dockingrl.agents.distributions import BoundedTanhNormal
 from dockingrl.agents.dropout import SparseDropout
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
-from dockingrl.scenarios import MIRROR_PAIR
+from dockingrl.scenarios import (
+    MIRROR_PAIR,
+    OBSERVATION_OPTIONS,
+    OBSERVATION_PARTS,
+    observation_layout,
+    observation_size,
+)
 
 #: what a privileged critic (``privileged_critic``) reads besides the observation: simulator
 #: state, never the policy's input
@@ -43,13 +51,34 @@ class ObservationScale(nn.Module):
         )
 
 
-def observation_scale(obs_dim: int, max_dist: float, normalize: bool) -> torch.Tensor:
-    """``1 / max_dist`` on every range entry (index 0 of each full 6-block: the raw and the
-    filtered observation), 1 elsewhere (the optional ocean current after them included)."""
+def observation_scale(
+    obs_dim: int, max_dist: float, normalize: bool, layout: Sequence[str] = ()
+) -> torch.Tensor:
+    """``1 / max_dist`` on every range entry, 1 elsewhere (the current, the previous command
+    and the filter's standard deviations included). The range entries are the first of each
+    reading (``observation``, ``filtered_observation``) of ``layout``
+    (:func:`~dockingrl.scenarios.observation_layout`) where it describes these ``obs_dim``
+    numbers; otherwise index 0 of each full 6-block, the same for every layout without
+    ``filter_std``."""
     scale = torch.ones(obs_dim)
-    if normalize:
+    if not normalize:
+        return scale
+    if observation_size(layout) != obs_dim:
         scale[0 : 6 * (obs_dim // 6) : 6] = 1.0 / max_dist
+        return scale
+    start = 0
+    for key in layout:
+        if key in ("observation", "filtered_observation"):
+            scale[start] = 1.0 / max_dist
+        start += len(OBSERVATION_PARTS[key])
     return scale
+
+
+def config_observation_scale(cfg: TrainConfig, obs_dim: int, max_dist: float) -> torch.Tensor:
+    """:func:`observation_scale` of the observation ``cfg``'s policy reads."""
+    options = {name: bool(getattr(cfg, name)) for name in OBSERVATION_OPTIONS}
+    layout = observation_layout(cfg.scenario, **options)
+    return observation_scale(obs_dim, max_dist, cfg.normalize_observation, layout)
 
 
 def mlp(
@@ -252,7 +281,7 @@ def deterministic_actor(obs_dim: int, action_spec: Bounded, hidden, scale, mirro
 
 def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: float):
     """The policy network of ``cfg.algo`` (what a saved policy holds)."""
-    scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
+    scale = config_observation_scale(cfg, obs_dim, max_dist)
     mirror = mirror_observation_signs(cfg, obs_dim)
     if cfg.algo == "td3":
         return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror)

@@ -9,7 +9,7 @@ from torchrl.data import Bounded
 from dockingrl.agents.averaging import ActorAverage
 from dockingrl.agents.base import Agent
 from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, TrainConfig
-from dockingrl.agents.networks import build_actor, observation_scale
+from dockingrl.agents.networks import build_actor, config_observation_scale
 from dockingrl.agents.ppo import PPOAgent
 from dockingrl.agents.sac import SACAgent
 from dockingrl.agents.td3 import TD3Agent
@@ -34,7 +34,7 @@ def make_agent(
     if agent_class is None:
         raise TypeError(f"no agent for {type(cfg).__name__}")
     action_spec = action_spec.to(device)
-    scale = observation_scale(obs_dim, max_dist, cfg.normalize_observation)
+    scale = config_observation_scale(cfg, obs_dim, max_dist)
     actor = build_actor(cfg, obs_dim, action_spec, max_dist).to(device)
     average = ActorAverage(actor, cfg.actor_average) if cfg.actor_average > 0 else None
     agent = agent_class.build(cfg, actor, action_spec, obs_dim, scale, max_dist, device)

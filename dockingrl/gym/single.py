@@ -142,7 +142,8 @@ class DockingScenarioEnv(DockingGymEnv):
 
     The observation is the policy's ``observation`` of ``dockingrl.make_env(scenario, 1,
     ...)``, float32: 6 numbers in ``no_noise``, ``noise`` and ``filtered``, 12 in
-    ``compound`` (raw first), plus the current and the previous command when observed. For
+    ``compound`` (raw first), plus the filter's standard deviations, the current and the
+    previous command when observed. For
     the same seed and actions every step gives the same numbers as that TorchRL pipeline.
     ``info`` is the bare env's (:class:`~dockingrl.env.gym_env.DockingGymEnv`).
 
