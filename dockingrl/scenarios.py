@@ -53,11 +53,13 @@ OBSERVATION_PARTS = {
 OBSERVATION_OPTIONS = ("observe_filter_std", "observe_current", "observe_command")
 
 
-def layout_options(options: Mapping) -> dict[str, bool]:
-    """The :data:`OBSERVATION_OPTIONS` of ``options`` (a dict of :func:`make_env` options or a
-    training config's), each ``True`` or ``False``: the keyword arguments of
-    :func:`observation_layout` and :func:`mirror_signs`."""
-    return {name: bool(options.get(name)) for name in OBSERVATION_OPTIONS}
+def layout_options(options) -> dict[str, bool]:
+    """The :data:`OBSERVATION_OPTIONS` of ``options`` (a dict of :func:`make_env` options, a
+    training config or its config.json's dict; an absent one is off), each ``True`` or
+    ``False``: the keyword arguments of :func:`observation_layout` and :func:`mirror_signs`."""
+    if isinstance(options, Mapping):
+        return {name: bool(options.get(name)) for name in OBSERVATION_OPTIONS}
+    return {name: bool(getattr(options, name, False)) for name in OBSERVATION_OPTIONS}
 
 
 def observation_layout(

@@ -10,7 +10,7 @@ from torch import nn
 
 from dockingrl.agents.config import TrainConfig
 from dockingrl.agents.world_options import WorldOptions
-from dockingrl.scenarios import MIRROR_PAIR, mirror_signs
+from dockingrl.scenarios import MIRROR_PAIR, layout_options, mirror_signs
 
 
 def mirror_transitions(data: TensorDictBase, observation_signs: torch.Tensor) -> TensorDictBase:
@@ -88,12 +88,7 @@ def symmetric(net: nn.Module, in_signs: torch.Tensor | None, out_signs) -> nn.Mo
 
 def config_mirror_signs(cfg: WorldOptions) -> torch.Tensor:
     """:func:`~dockingrl.scenarios.mirror_signs` of the observation ``cfg``'s policy reads."""
-    return mirror_signs(
-        cfg.scenario,
-        observe_current=cfg.observe_current,
-        observe_command=cfg.observe_command,
-        observe_filter_std=cfg.observe_filter_std,
-    )
+    return mirror_signs(cfg.scenario, **layout_options(cfg))
 
 
 def mirror_observation_signs(

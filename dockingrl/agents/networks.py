@@ -23,8 +23,8 @@ from dockingrl.agents.dropout import SparseDropout
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
 from dockingrl.scenarios import (
     MIRROR_PAIR,
-    OBSERVATION_OPTIONS,
     OBSERVATION_PARTS,
+    layout_options,
     observation_layout,
     observation_size,
 )
@@ -76,8 +76,7 @@ def observation_scale(
 
 def config_observation_scale(cfg: TrainConfig, obs_dim: int, max_dist: float) -> torch.Tensor:
     """:func:`observation_scale` of the observation ``cfg``'s policy reads."""
-    options = {name: bool(getattr(cfg, name)) for name in OBSERVATION_OPTIONS}
-    layout = observation_layout(cfg.scenario, **options)
+    layout = observation_layout(cfg.scenario, **layout_options(cfg))
     return observation_scale(obs_dim, max_dist, cfg.normalize_observation, layout)
 
 

@@ -52,10 +52,8 @@ def pipeline_options(config: Mapping) -> dict:
     """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (as a
     dict, e.g. a saved policy's ``config``) fixes for whatever runs its policy:
     ``observe_current``, ``observe_command``, ``observe_filter_std``, ``action_repeat`` and the
-    filter's
-    ``compensate_latency``, ``estimate_current`` and ``filter_gate`` (as ``ekf_kwargs``), where
-    they differ
-    from the paper's. Training,
+    filter's ``compensate_latency``, ``estimate_current`` and ``filter_gate`` (as
+    ``ekf_kwargs``), where they differ from the paper's. Training,
     ``dockingrl eval --policy``, ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take
     them from here."""
     options: dict = {}

@@ -98,8 +98,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.algo is None:
             raise UsageError("--algo or --recipe is required (unless --resume RUN_DIR)")
         cfg, given = _from_command_line(lambda: config_from_args(args)), None
-    start_steps = getattr(cfg, "start_steps", 0)
-    if cfg is not None and start_steps and start_steps >= cfg.total_steps:
+    start_steps = getattr(cfg, "start_steps", 0)  # off-policy only; no cfg with --resume
+    if start_steps and start_steps >= cfg.total_steps:
         raise UsageError(
             f"--start-steps {start_steps} >= --total-steps {cfg.total_steps}: the run would act "
             "at random throughout and never learn; give fewer --start-steps"

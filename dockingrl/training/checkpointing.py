@@ -29,7 +29,6 @@ def observation_width(config) -> int | None:
     """How many numbers the policy of a run with ``config`` (a config or its config.json's
     dict) reads, or ``None`` where it names no known scenario."""
     from dockingrl.scenarios import (
-        OBSERVATION_OPTIONS,
         SCENARIOS,
         layout_options,
         observation_layout,
@@ -39,10 +38,7 @@ def observation_width(config) -> int | None:
     get = config.get if isinstance(config, dict) else lambda k: getattr(config, k, None)
     if get("scenario") not in SCENARIOS:
         return None
-    layout = observation_layout(
-        get("scenario"), **layout_options({k: get(k) for k in OBSERVATION_OPTIONS})
-    )
-    return observation_size(layout)
+    return observation_size(observation_layout(get("scenario"), **layout_options(config)))
 
 
 def network_differences(source: dict, cfg) -> list[str]:
