@@ -32,12 +32,16 @@ def test_ppo_fast_follow_is_ppo_fast_with_following_currents_in_training():
     assert recipe_changes("ppo-fast-follow", "ppo-fast") == {"following_current_fraction": 0.9}
 
 
-def test_main_sh_trains_the_ppo_fast_follow_recipe_alone():
+def test_ppo_fast_follow_lr8_is_ppo_fast_follow_at_a_higher_learning_rate():
+    assert recipe_changes("ppo-fast-follow-lr8", "ppo-fast-follow") == {"lr": 0.0008}
+
+
+def test_main_sh_trains_the_ppo_fast_follow_lr8_recipe_alone():
     script = (ROOT / "main.sh").read_text()
     calls = re.findall(r"-m dockingrl train ([^\n]*)", script)
     assert len(calls) == 1
     options = calls[0].split()
-    assert options[:2] == ["--recipe", "ppo-fast-follow"]
+    assert options[:2] == ["--recipe", "ppo-fast-follow-lr8"]
     # no config field beyond the recipe's, except where the run folder goes
     assert [o for o in options if o.startswith("--")] == ["--recipe", "--out"]
 
