@@ -1,6 +1,6 @@
-"""The ``ppo-fast`` recipe and the main job's ``ppo-fast-follow`` on it: what each sets, that
-``main.sh`` trains the second with no other config option, a smoke run of ``ppo-fast``, and
-that the committed main-job runs are ``ppo-fast-follow``'s."""
+"""The ``ppo-fast`` recipe, ``ppo-fast-follow`` on it and the main job's ``ppo-fast-follow-lr8``
+on that: what each sets, that ``main.sh`` trains the last with no other config option, a smoke
+run of ``ppo-fast``, and that the committed main-job runs are the recipes'."""
 
 import json
 import re
@@ -63,11 +63,17 @@ def test_train_with_the_ppo_fast_recipe(tmp_path, short_episodes):
 
 def test_the_committed_main_job_runs_are_the_recipe():
     """``results/agents/main_job/`` (seed 0) and its ``seed1/`` are ``bash main.sh`` runs of
-    ``ppo-fast-follow``: their configs are the recipe's at their seeds, and their summaries
-    name the command."""
-    for folder, seed in [(MAIN_JOB, 0), (MAIN_JOB / "seed1", 1)]:
-        assert differences_from_recipe(folder, "ppo-fast-follow", seed=seed) == set()
+    ``ppo-fast-follow-lr8``, and ``results/agents/ppo_fast_follow/`` those of the main job before
+    it: their configs are the recipes' at their seeds, and their summaries name the command."""
+    ppo_fast_follow = MAIN_JOB.parent / "ppo_fast_follow"
+    for folder, recipe, seed in [
+        (MAIN_JOB, "ppo-fast-follow-lr8", 0),
+        (MAIN_JOB / "seed1", "ppo-fast-follow-lr8", 1),
+        (ppo_fast_follow, "ppo-fast-follow", 0),
+        (ppo_fast_follow / "seed1", "ppo-fast-follow", 1),
+    ]:
+        assert differences_from_recipe(folder, recipe, seed=seed) == set()
         summary = json.loads((folder / "summary.json").read_text())
-        assert summary["command"].startswith("dockingrl train --recipe ppo-fast-follow --out runs")
+        assert summary["command"].startswith(f"dockingrl train --recipe {recipe} --out runs")
         assert summary["frames"] >= 3_000_000
         assert json.loads((folder / "eval.json").read_text())["episodes"] == 2000
