@@ -164,3 +164,30 @@ def test_current_filter_accuracy_compares_both_filters_at_each_level(tmp_path):
         if r["level"] == "L2" and r["gate"] is None
     }
     assert at_l2[True] < at_l2[False]
+
+
+def test_filter_std_spread_is_wider_at_l5_than_at_l0(tmp_path):
+    out = tmp_path / "spread.json"
+    argv = ["--levels", "L0,L5", "--envs", "8", "--to", "60", "--out", str(out)]
+    load_script("filter_std_spread.py").main(argv)
+    report = json.loads(out.read_text())
+    assert shlex.split(report["command"]) == ["python", "scripts/filter_std_spread.py", *argv]
+    l0, l5 = report["rows"]
+    assert (l0["level"], l5["level"]) == ("L0", "L5")
+    assert l0["samples"] > 0 and l5["samples"] > 0
+    # percentiles ordered, and the harsh level's filter is less sure of its position
+    for row in (l0, l5):
+        assert (
+            row["along_track_m"]["p10"]
+            <= row["along_track_m"]["p50"]
+            <= row["along_track_m"]["p90"]
+        )
+    assert l5["along_track_m"]["p50"] > l0["along_track_m"]["p50"]
+    assert l5["across_m"]["p50"] > l0["across_m"]["p50"]
+
+
+def test_filter_std_spread_refuses_an_unknown_level_and_an_empty_window():
+    for args in (["--levels", "L9"], ["--from", "50", "--to", "10"]):
+        result = run_script("filter_std_spread.py", *args)
+        assert result.returncode == 2
+        assert "L9" in result.stderr or "--from 50" in result.stderr
