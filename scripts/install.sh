@@ -9,6 +9,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
 pip_install() { "$PYTHON" -m pip install -q --disable-pip-version-check "$@"; }
+# Two set-ups at once (two `bash main.sh` started together) would race in pip's install of the
+# same Python: where flock exists, the second waits for the first.
+if command -v flock >/dev/null 2>&1; then
+    exec 9>"${TMPDIR:-/tmp}/dockingrl-install-$(id -u).lock"
+    flock 9
+fi
 if ! "$PYTHON" -c 'import sys, torch; sys.exit(not torch.__version__.startswith("2.13."))' 2>/dev/null; then
     pip_install torch==2.13.0+cpu 2>/dev/null \
         || pip_install torch==2.13.0+cpu --extra-index-url "${TORCH_INDEX_URL:-https://download.pytorch.org/whl/cpu}" \
