@@ -67,12 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     command = shlex.join(["python", "scripts/compare_curves.py", *(argv or sys.argv[1:])])
     # the wall-clock from the start to the footer (saving the figure follows)
     drawn = {"command": command, "machine": describe_machine()}
-    drawn["wall_clock_s"] = round(time.perf_counter() - started, 2)
+    drawn["wall_clock_s"] = time.perf_counter() - started
     fig.text(
         0.01,
         0.005,
         f"{command}  |  runs on: {machine}  |  drawn on {drawn['machine']} "
-        f"in {drawn['wall_clock_s']:.1f} s",
+        f"in {drawn['wall_clock_s']:.2f} s",
         fontsize=6,
         wrap=True,
     )
