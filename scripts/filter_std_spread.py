@@ -23,15 +23,15 @@ from dockingrl.env.levels import LEVELS, level_config
 from dockingrl.evaluation import describe_machine
 from dockingrl.io import write_json
 from dockingrl.scenarios import make_env
+from dockingrl.transforms.ekf import CHI2_2DOF_999
 
 PERCENTILES = (10, 50, 90)
 
 
 def spread(level: str, envs: int, first: int, last: int, seed: int) -> dict:
     """Percentiles of ``filter_std`` over steps ``first``-``last`` at ``level``."""
-    ekf = {} if level == "L0" else {"gate": 13.816, "compensate_latency": True}
-    if level != "L0":
-        ekf["estimate_current"] = True
+    harsh = {"gate": CHI2_2DOF_999, "compensate_latency": True, "estimate_current": True}
+    ekf = {} if level == "L0" else harsh
     env = make_env(
         "compound",
         envs,
@@ -53,15 +53,13 @@ def spread(level: str, envs: int, first: int, last: int, seed: int) -> dict:
             break
     values = torch.cat(samples).double()
     q = torch.tensor([p / 100 for p in PERCENTILES], dtype=torch.float64)
-    along, across = torch.quantile(values[:, 0], q), torch.quantile(values[:, 1], q)
-    return {
-        "level": level,
-        "samples": int(values.shape[0]),
-        "along_track_m": {
-            f"p{p}": round(float(v), 3) for p, v in zip(PERCENTILES, along, strict=True)
-        },
-        "across_m": {f"p{p}": round(float(v), 3) for p, v in zip(PERCENTILES, across, strict=True)},
-    }
+    row = {"level": level, "samples": int(values.shape[0])}
+    for column, name in enumerate(("along_track_m", "across_m")):
+        quantiles = torch.quantile(values[:, column], q)
+        row[name] = {
+            f"p{p}": round(float(v), 3) for p, v in zip(PERCENTILES, quantiles, strict=True)
+        }
+    return row
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
