@@ -254,6 +254,22 @@ def test_response_time_scale_slows_the_velocity_loops_by_its_factor():
     assert ((faster / nominal > 0.4) & (faster / nominal < 0.6)).all(), (nominal, faster)
 
 
+def test_the_dynamics_ranges_stack_at_their_slowest_corner():
+    # drawn independently, L3's scales stack: a heavy, lightly damped vehicle with weak thrust
+    # and soft gains responds about 6x slower than nominal at response_time_scale 3, where the
+    # scale alone gives 3.4x (docs/realism.md)
+    fine = DockingConfig(dt=0.01)
+    corner = fine.replace(
+        mass_scale=(1.3, 1.3),
+        damping_scale=(0.7, 0.7),
+        thrust_scale=(0.8, 0.8),
+        pid_gain_scale=(0.7, 0.7),
+        response_time_scale=(3.0, 3.0),
+    )
+    ratio = rise_time(corner, (0.02, 0.01)) / rise_time(fine, (0.02, 0.01))
+    assert ((ratio > 5.5) & (ratio < 6.5)).all(), ratio
+
+
 def test_reverse_and_turning_losses_limit_the_surge_thrust():
     limit = torch.tensor([[40.0]])
     tau = torch.tensor([[-40.0, 0.0]])
