@@ -38,3 +38,31 @@ def test_the_committed_fine_tunes_are_the_recipe(seed):
     ladder = json.loads((folder / "stress.json").read_text())
     assert Path(ladder["policy"]).parent.name == f"sac_ln_robust_ft_avg9995_s{seed}"
     assert [row["name"] for row in ladder["levels"]] == ["L0", "L1", "L2", "L3", "L4", "L5"]
+
+
+AMD = RESULTS.parent / "robust_ft_ln_avg_amd"
+#: the reruns on the AMD EPYC were made with the recipes' names; only where they went differs
+AMD_FIELDS = {"out", "run_name", "logger", "init_from"}
+
+
+@pytest.mark.parametrize(
+    "seed", sorted(int(p.name[-1]) for p in AMD.glob("sac_ln_robust_ft_avg_s*"))
+)
+def test_the_reruns_on_another_cpu_are_both_recipes(seed):
+    first = check_committed_run(
+        AMD / f"sac_ln_s{seed}", "sac-ln", AMD_FIELDS, scenario="filtered", seed=seed
+    )
+    fine = check_committed_run(
+        AMD / f"sac_ln_robust_ft_avg_s{seed}",
+        "sac-ln-robust-ft-avg",
+        AMD_FIELDS,
+        scenario="filtered",
+        seed=seed,
+    )
+    # the fine-tune started from that seed's first stage, whose run name is its config's
+    assert Path(fine["init_from"]).name == first["run_name"]
+    for name, run in ((f"sac_ln_s{seed}", first), (f"sac_ln_robust_ft_avg_s{seed}", fine)):
+        ladder = json.loads((AMD / name / "stress.json").read_text())
+        # each ladder is of the policy of the run beside it
+        assert Path(ladder["policy"]).parent.name == run["run_name"]
+        assert [row["name"] for row in ladder["levels"]] == ["L0", "L1", "L2", "L3", "L4", "L5"]
