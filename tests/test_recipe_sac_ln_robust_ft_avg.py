@@ -66,3 +66,18 @@ def test_the_reruns_on_another_cpu_are_both_recipes(seed):
         # each ladder is of the policy of the run beside it
         assert Path(ladder["policy"]).parent.name == run["run_name"]
         assert [row["name"] for row in ladder["levels"]] == ["L0", "L1", "L2", "L3", "L4", "L5"]
+
+
+@pytest.mark.parametrize(
+    "seed", sorted(int(p.name[-1]) for p in AMD.glob("sac_ln_robust_ft_avg_gamma099_s*"))
+)
+def test_the_discount_probe_differs_from_the_recipe_in_the_discount_alone(seed):
+    folder = AMD / f"sac_ln_robust_ft_avg_gamma099_s{seed}"
+    run = check_committed_run(
+        folder, "sac-ln-robust-ft-avg", AMD_FIELDS | {"gamma"}, scenario="filtered", seed=seed
+    )
+    assert run["gamma"] == 0.99
+    first = json.loads((AMD / f"sac_ln_s{seed}" / "config.json").read_text())
+    assert Path(run["init_from"]).name == first["run_name"]
+    ladder = json.loads((folder / "stress.json").read_text())
+    assert Path(ladder["policy"]).parent.name == run["run_name"]
