@@ -14,6 +14,7 @@ machine and wall-clock.
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 
@@ -73,12 +74,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = parser.parse_args(argv)
     if not 1 <= args.first <= args.last:
         parser.error(f"--from {args.first} and --to {args.last}: need 1 <= from <= to")
+    levels = args.levels.split(",")
+    for level in levels:
+        if level not in LEVELS:
+            parser.error(f"unknown level {level!r}; valid: {', '.join(LEVELS)}")
     torch.set_num_threads(1)
     start = time.perf_counter()
     rows = []
-    for level in args.levels.split(","):
-        if level not in LEVELS:
-            parser.error(f"unknown level {level!r}; valid: {', '.join(LEVELS)}")
+    for level in levels:
         row = spread(level, args.envs, args.first, args.last, args.seed)
         rows.append(row)
         print(
@@ -89,7 +92,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     wall = time.perf_counter() - start
     print(f"{describe_machine('cpu')}, {wall:.1f} s")
     if args.out:
-        command = " ".join(["python", "scripts/filter_std_spread.py", *(argv or sys.argv[1:])])
+        command = shlex.join(["python", "scripts/filter_std_spread.py", *(argv or sys.argv[1:])])
         payload = {"command": command, "machine": describe_machine("cpu"), "wall_clock_s": wall}
         write_json(args.out, {**payload, "rows": rows})
     return rows
