@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import sys
 import time
 from pathlib import Path
 
 from dockingrl.evaluation import describe_machine
 from dockingrl.io import atomic_write, write_json
+from dockingrl.provenance import script_command
 from dockingrl.training import read_curves
 
 
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    command = shlex.join(["python", "scripts/compare_curves.py", *(argv or sys.argv[1:])])
+    command = script_command("compare_curves.py", argv)
     # the wall-clock from the start to the footer (saving the figure follows)
     drawn = {"command": command, "machine": describe_machine()}
     drawn["wall_clock_s"] = time.perf_counter() - started

@@ -25,6 +25,7 @@ from dockingrl.evaluation import describe_machine
 from dockingrl.filter_learning import filter_estimates, record_rollouts
 from dockingrl.filter_learning.consistency import state_error
 from dockingrl.io import write_json
+from dockingrl.provenance import script_command
 from dockingrl.scenarios import make_filter
 from dockingrl.transforms.ekf import STATE_DIM
 
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> dict:
                 print(json.dumps(row), flush=True)
         wall[level] = time.perf_counter() - start
     result = {
-        "command": " ".join(["python", "scripts/current_filter_accuracy.py", *(argv or [])]),
+        "command": script_command("current_filter_accuracy.py", argv),
         "machine": describe_machine("cpu"),
         "wall_clock_s": wall,
         "rows": rows,

@@ -12,8 +12,6 @@ band of steps since the episode's start: the mean NEES (5 when consistent) and t
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 import time
 
 import torch
@@ -25,6 +23,7 @@ from dockingrl.filter_learning import (
     run_filter,
 )
 from dockingrl.io import write_json
+from dockingrl.provenance import script_command
 from dockingrl.transforms import EKFTransform
 
 BANDS = ((10, 30), (30, 60), (60, 100), (100, 150), (150, 200), (200, 300), (300, 600))
@@ -64,7 +63,7 @@ def main() -> None:
         report["filters"][spec] = rows
     report["wall_clock_s"] = time.perf_counter() - start
     # every argument as given, so that --seed and --threads rerun too
-    report["command"] = shlex.join(["python", "scripts/filter_nees_by_phase.py", *sys.argv[1:]])
+    report["command"] = script_command("filter_nees_by_phase.py")
     write_json(args.out, report)
 
 

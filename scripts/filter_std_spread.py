@@ -14,8 +14,6 @@ machine and wall-clock.
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 import time
 
 import torch
@@ -23,6 +21,7 @@ import torch
 from dockingrl.env.levels import LEVELS, level_config
 from dockingrl.evaluation import describe_machine
 from dockingrl.io import write_json
+from dockingrl.provenance import script_command
 from dockingrl.scenarios import make_env
 from dockingrl.transforms.ekf import CHI2_2DOF_999
 
@@ -92,7 +91,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     wall = time.perf_counter() - start
     print(f"{describe_machine('cpu')}, {wall:.1f} s")
     if args.out:
-        command = shlex.join(["python", "scripts/filter_std_spread.py", *(argv or sys.argv[1:])])
+        command = script_command("filter_std_spread.py", argv)
         payload = {"command": command, "machine": describe_machine("cpu"), "wall_clock_s": wall}
         write_json(args.out, {**payload, "rows": rows})
     return rows

@@ -15,12 +15,16 @@ import torch
 from dockingrl.env.levels import level_config
 from dockingrl.evaluation import describe_machine
 from dockingrl.filter_learning import evaluate_filter, record_rollouts
+from dockingrl.provenance import script_command
 from dockingrl.scenarios import make_filter
 
 KEYS = ("rmse_position_m", "rmse_heading_rad", "rmse_surge_m_s", "nees_mean", "nis_mean")
 
 torch.set_num_threads(1)
-result = {"command": " ".join(["python", *sys.argv]), "machine": describe_machine("cpu")}
+result = {
+    "command": script_command("latency_filter_accuracy.py"),
+    "machine": describe_machine("cpu"),
+}
 rows, wall = [], {}
 for level in ("L1", "L5"):
     config = level_config(level)

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 
@@ -36,6 +35,7 @@ from dockingrl.evaluation import (
 from dockingrl.io import write_json
 from dockingrl.planning import PlannerConfig, PlannerPolicy
 from dockingrl.plots import plot_success_map, plot_trajectories
+from dockingrl.provenance import script_command
 from dockingrl.scenarios import make_env
 
 
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"oc = ({x:+.3f}, {y:+.3f})  planner {rows[-1]['success_rate']:5.1f} %{other}")
     rate = float(success.double().mean() * 100)
     print(f"planner success over these cells: {rate:.1f} % ({wall:.0f} s)")
-    command = shlex.join(["python", "scripts/oracle_map.py", *(argv or sys.argv[1:])])
+    command = script_command("oracle_map.py", argv)
     if args.figure:
         draw(args.figure, grid, rows, out, args.trials, base_env(env).config, command, wall)
     write_json(

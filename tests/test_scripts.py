@@ -42,6 +42,17 @@ def fake_run(folder: Path, values: list[float]) -> Path:
     return folder
 
 
+def test_script_command_quotes_its_arguments_and_defaults_to_the_process_arguments(monkeypatch):
+    from dockingrl.provenance import script_command
+
+    argv = ["--out", "a dir/x.json", "--levels", "L0"]
+    command = script_command("oracle_map.py", argv)
+    assert shlex.split(command) == ["python", "scripts/oracle_map.py", *argv]
+    monkeypatch.setattr(sys, "argv", ["whatever/path.py", "--seed", "3"])
+    assert script_command("oracle_map.py") == "python scripts/oracle_map.py --seed 3"
+    assert script_command("oracle_map.py", []) == "python scripts/oracle_map.py"
+
+
 def test_compare_curves_writes_the_figure_and_the_table(tmp_path):
     a = fake_run(tmp_path / "a", [0.0, 20.0, 45.0])
     b = fake_run(tmp_path / "b", [5.0, 10.0])
