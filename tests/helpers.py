@@ -264,3 +264,11 @@ def check_committed_run(run_dir: Path, recipe: str, allowed: set[str], **fields)
     final = json.loads((run_dir / "eval.json").read_text())
     assert summary["success_rate"] == final["success_rate"]
     return json.loads((run_dir / "config.json").read_text())
+
+
+def ladder_policy(folder: Path) -> Path:
+    """The policy whose committed ladder ``folder/stress.json`` is, after checking that the
+    ladder covers every level, L0 to L5."""
+    ladder = json.loads((folder / "stress.json").read_text())
+    assert [row["name"] for row in ladder["levels"]] == ["L0", "L1", "L2", "L3", "L4", "L5"]
+    return Path(ladder["policy"])

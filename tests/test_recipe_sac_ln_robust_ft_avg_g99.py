@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from helpers import check_committed_run, recipe_changes
+from helpers import check_committed_run, ladder_policy, recipe_changes
 
 from dockingrl.recipes import load_recipe
 
@@ -17,7 +17,6 @@ RESULTS = Path(__file__).resolve().parents[1] / "results" / "stress" / "robust_f
 #: (``--resume RUN --total-steps 750000``), the fine-tunes as ``--recipe sac-ln-robust-ft-avg
 #: --gamma 0.99``
 RUN_FIELDS = {"out", "run_name", "logger", "init_from", "recipe"}
-LEVELS = ["L0", "L1", "L2", "L3", "L4", "L5"]
 
 
 def test_the_first_stage_is_sac_ln_for_750k_env_steps():
@@ -27,13 +26,6 @@ def test_the_first_stage_is_sac_ln_for_750k_env_steps():
 def test_the_fine_tune_is_sac_ln_robust_ft_avg_at_the_discount_0_99_from_sac_ln_750k():
     assert recipe_changes("sac-ln-robust-ft-avg-g99", "sac-ln-robust-ft-avg") == {"gamma": 0.99}
     assert load_recipe("sac-ln-robust-ft-avg-g99").first_stage == "sac-ln-750k"
-
-
-def ladder_policy(folder: Path) -> Path:
-    """The policy whose ladder ``folder`` holds, after checking it covers every level."""
-    ladder = json.loads((folder / "stress.json").read_text())
-    assert [row["name"] for row in ladder["levels"]] == LEVELS
-    return Path(ladder["policy"])
 
 
 @pytest.mark.parametrize(
