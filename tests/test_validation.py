@@ -176,7 +176,7 @@ def test_paper_values_and_the_repos_configs_are_accepted():
     # the paper's values lie well inside: any one of them doubled or halved is accepted
     for field in dataclasses.fields(DockingConfig):
         value = getattr(paper, field.name)
-        if field.name == "noise":
+        if field.name in ("noise", "vehicle"):
             continue
         for factor in (2, 0.5):
             if isinstance(value, tuple):

@@ -34,7 +34,10 @@ class Bound(NamedTuple):
 
 def field_problem(kind: str, value, bound: Bound | None) -> str:
     """Why ``value`` may not be a config field of annotation ``kind`` (``"bool"``, ``"int"``,
-    ``"float"`` or a ``"tuple..."`` pair) and accepted range ``bound``; ``""`` when it may."""
+    ``"float"``, ``"str"`` or a ``"tuple..."`` pair) and accepted range ``bound``; ``""`` when it
+    may (a string's accepted values are its field's own check)."""
+    if kind == "str":
+        return "" if isinstance(value, str) else "must be a string"
     if kind == "bool":
         if not isinstance(value, bool):
             return "must be True or False"

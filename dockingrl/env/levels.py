@@ -1,6 +1,8 @@
-"""The stress ladder's levels (``dockingrl stress``, docs/realism.md): the paper's task (L0) and
-:class:`DockingConfig` realism options at harsh but realistic values (L1-L5), for evaluating a
-policy and for training over the realistic task (``train_level``)."""
+"""The stress ladder's levels (``dockingrl stress``, docs/realism.md): the paper's task (L0),
+:class:`DockingConfig` realism options at harsh but realistic values (L1-L5), the Fossen vehicle
+(docs/vehicles.md) alone (F0) and with L5's sensors and current (F5), and both vehicles with all
+of L5's ranges (M5), for evaluating a policy and for training over the realistic task
+(``train_level``)."""
 
 from __future__ import annotations
 
@@ -43,6 +45,15 @@ LEVELS: dict[str, tuple[str, dict]] = {
     "L3": ("dynamics: +-30 % vehicle, 3x slower loops, weak reverse", HARSH_DYNAMICS),
     "L4": ("sensors and current", {**HARSH_SENSORS, **HARSH_CURRENT}),
     "L5": ("sensors, current and dynamics", {**HARSH_SENSORS, **HARSH_CURRENT, **HARSH_DYNAMICS}),
+    "F0": ("the Fossen vehicle", {"vehicle": "fossen"}),
+    "F5": (
+        "the Fossen vehicle, L5's sensors and current",
+        {**HARSH_SENSORS, **HARSH_CURRENT, "vehicle": "fossen"},
+    ),
+    "M5": (
+        "either vehicle per episode, L5's sensors, current and dynamics",
+        {**HARSH_SENSORS, **HARSH_CURRENT, **HARSH_DYNAMICS, "vehicle": "mixed"},
+    ),
 }
 
 

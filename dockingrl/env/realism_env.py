@@ -11,6 +11,7 @@ import torch
 from tensordict import TensorDictBase
 
 from dockingrl.env.dynamics import noisy_observation
+from dockingrl.env.fossen import SPARUS_II, fossen_step, hydrodynamics, strip_tensors
 from dockingrl.env.realism import (
     SENSOR_OF_ENTRY,
     SENSORS,
@@ -22,6 +23,7 @@ from dockingrl.env.realism import (
     vehicle_parameters,
 )
 from dockingrl.env.specs import OBSERVATION_DIM
+from dockingrl.env.step import paper_motion, step_entries
 
 
 class RealismMixin:
@@ -46,12 +48,39 @@ class RealismMixin:
             names += ("_current_mean", "_current_bias", "_known_current")
         if cfg.sensor_timing:
             names += ("_held", "_sensor_steps", "_usbl_history", "_lost")
+        if cfg.vehicle != "paper":
+            names += ("_thrust",)
+        if cfg.vehicle == "mixed":
+            names += ("_on_fossen",)
         return names
+
+    @property
+    def on_fossen(self) -> torch.Tensor:
+        """``(num_envs, 1)`` bool: whether each env's episode flies the Fossen vehicle
+        (:attr:`DockingConfig.vehicle`), a copy."""
+        if self.config.vehicle == "mixed":
+            return self._on_fossen.clone()
+        value = self.config.vehicle == "fossen"
+        return torch.full((self.num_envs, 1), value, dtype=torch.bool, device=self.device)
 
     def _after_realism_state_set(self) -> None:
         """Recompute what derives from the realism state (the episode's vehicle)."""
         if self.config.dynamics_mismatch:
             self._vehicle = vehicle_parameters(self.config, self._scales)
+        self._make_fossen_vehicle()
+
+    def _make_fossen_vehicle(self) -> None:
+        """The Fossen vehicle's coefficients: nominal (what its controller's feedforward knows)
+        and, with the dynamics scales on, this episode's per env."""
+        cfg = self.config
+        if cfg.vehicle == "paper":
+            return
+        self._fossen_nominal = hydrodynamics(SPARUS_II, cfg.dt)
+        self._fossen_hydro, self._fossen_gain = self._fossen_nominal, 1.0
+        if cfg.dynamics_mismatch:
+            scales = self._scales
+            self._fossen_hydro = hydrodynamics(SPARUS_II, cfg.dt, scales, cfg.reverse_thrust_loss)
+            self._fossen_gain = scales[:, 3]
 
     def _make_realism_state(self) -> None:
         """The per-env state of the realism options that are on (docs/realism.md)."""
@@ -72,6 +101,12 @@ class RealismMixin:
             self._usbl_history = torch.zeros(n, history, 2, device=dev, dtype=dtype)
             self._lost = torch.zeros(n, 1, device=dev, dtype=torch.bool)
             self._sensor_entry = torch.tensor(SENSOR_OF_ENTRY, device=dev)
+        if cfg.vehicle != "paper":
+            self._thrust = torch.zeros(n, 2, device=dev, dtype=dtype)
+            self._strips = strip_tensors(SPARUS_II, dev, dtype)
+            self._make_fossen_vehicle()
+        if cfg.vehicle == "mixed":
+            self._on_fossen = torch.zeros(n, 1, device=dev, dtype=torch.bool)
 
     def _reset_realism(self, rows: torch.Tensor, current_mean: torch.Tensor) -> torch.Tensor:
         """Start the realism state of the envs in ``rows`` ``(n, 1)`` (their true state is
@@ -83,6 +118,12 @@ class RealismMixin:
             scales = draw_scales(cfg, n, gen, dev, dtype)
             self._scales = torch.where(rows, scales, self._scales)
             self._vehicle = vehicle_parameters(cfg, self._scales)
+            self._make_fossen_vehicle()
+        if cfg.vehicle != "paper":
+            self._thrust = self._thrust.masked_fill(rows, 0.0)
+        if cfg.vehicle == "mixed":
+            draw = torch.rand(n, 1, generator=gen, device=dev, dtype=dtype) < cfg.fossen_fraction
+            self._on_fossen = torch.where(rows, draw, self._on_fossen)
         if cfg.current_model:
             self._current_mean = torch.where(rows, current_mean, self._current_mean)
             if cfg.current_knowledge_bias > 0:
@@ -154,13 +195,60 @@ class RealismMixin:
         self._sensor_steps = torch.where(fresh, 0, self._sensor_steps + 1)
         return self._held
 
+    def _advance_fossen(self, action: torch.Tensor) -> dict:
+        """Move the Fossen vehicle (``"mixed"``: each env its episode's vehicle) one step on
+        (:func:`~dockingrl.env.fossen.fossen_step`) and return the step's entries."""
+        cfg = self.config
+        pose, velocity, thrust, integral, error, tau = fossen_step(
+            self._pose,
+            self._velocity,
+            self._thrust,
+            self._integral,
+            action,
+            self._current,
+            SPARUS_II,
+            self._fossen_nominal,
+            self._fossen_hydro,
+            self._strips,
+            cfg.dt,
+            self._fossen_gain,
+        )
+        if cfg.vehicle == "mixed":
+            gains = (self._kp, self._ki, self._kd, self._inertia)
+            paper = paper_motion(
+                cfg,
+                gains,
+                self._pose,
+                self._velocity,
+                self._current,
+                self._integral,
+                self._previous_error,
+                action,
+                self._vehicle,
+            )
+            rows = self._on_fossen
+            fossen = (pose, velocity, integral, error, tau)
+            pose, velocity, integral, error, tau = (
+                torch.where(rows, f, p) for f, p in zip(fossen, paper, strict=True)
+            )
+            thrust = torch.where(rows, thrust, self._thrust)
+        self._step_count, out = step_entries(
+            cfg, pose, velocity, self._current, self._step_count, tau, self.step_reward, None, None
+        )
+        self._pose, self._velocity, self._thrust = pose, velocity, thrust
+        self._integral, self._previous_error = integral, error
+        return out
+
     def _step_realistic(self, action: torch.Tensor) -> TensorDictBase:
         """:meth:`_step` with realism options on: the episode's vehicle, the sensors' timing and
         faults, the current's variation and the vehicle's belief about it. Table 2's noise is
         drawn as in the paper's task, the rest from :attr:`realism_rng`."""
         cfg = self.config
         noise = self._sample_noise() if cfg.noise else None
-        out = self._advance(action, None, self._vehicle)
+        if cfg.vehicle == "paper":
+            out = self._advance(action, None, self._vehicle)
+        else:
+            out = self._advance_fossen(action)
         if cfg.sensor_timing:
             out["observation"] = self._sense(out["observation"], noise)
         elif noise is not None:

@@ -44,7 +44,11 @@ REALISM_BOUNDS: dict[str, Bound] = {
     ),
     "reverse_thrust_loss": Bound(0.0, 0.95, "", "a fraction of max_thrust"),
     "turning_surge_loss": Bound(0.0, 0.95, "", "a fraction of the surge thrust"),
+    "fossen_fraction": Bound(0.0, 1.0, "", "a probability"),
 }
+
+#: the vehicles the env flies (:attr:`RealismOptions.vehicle`)
+VEHICLES = ("paper", "fossen", "mixed")
 
 
 @dataclass(frozen=True)
@@ -114,6 +118,20 @@ class RealismOptions:
     #: fraction of the surge thrust lost at full yaw moment, linearly in ``|tau_r| /
     #: max_thrust``: a vectored thruster that turns hard pushes less forward, about 0.5.
     turning_surge_loss: float = 0.0
+    #: the vehicle flown: ``"paper"``, the paper's model (eqs. 36-38, Sec. 4.1); ``"fossen"``, a
+    #: Fossen manoeuvring model of a Sparus II-class AUV with added mass, Coriolis and
+    #: cross-flow drag, two thrusters with lag and weak reverse thrust and its own velocity
+    #: controller (:mod:`dockingrl.env.fossen`, docs/vehicles.md); ``"mixed"``, each episode
+    #: one of the two, the Fossen vehicle with probability ``fossen_fraction`` (training
+    #: across vehicles). The dynamics scales above apply to either: on the Fossen vehicle the
+    #: mass factor scales ``M`` and ``C``, the damping factor ``D``, the thrust factor both
+    #: thrusts, the gain factor its controller's gains, the response factor its thrusters' time
+    #: constant; ``reverse_thrust_loss`` weakens its reverse thrust further;
+    #: ``turning_surge_loss`` is the paper vehicle's only (the Fossen allocation trades surge
+    #: for yaw by itself).
+    vehicle: str = "paper"
+    #: the share of ``"mixed"`` episodes flown on the Fossen vehicle.
+    fossen_fraction: float = 0.5
 
     def _check_realism(self, fail) -> None:
         """The realism options' checks beyond :data:`REALISM_BOUNDS` (the worst-case PID loop
@@ -143,6 +161,8 @@ class RealismOptions:
             low, high = getattr(self, name)
             if low > high:
                 fail(name, "empty range: needs low <= high")
+        if self.vehicle not in VEHICLES:
+            fail("vehicle", f"unknown vehicle; valid: {', '.join(VEHICLES)}")
 
     def _steps(self, seconds: float) -> int:
         return max(1, round(seconds / self.dt))
@@ -201,4 +221,9 @@ class RealismOptions:
     @property
     def realistic(self) -> bool:
         """Whether any realism option is on (the paper's task when False)."""
-        return self.sensor_timing or self.current_model or self.dynamics_mismatch
+        return (
+            self.sensor_timing
+            or self.current_model
+            or self.dynamics_mismatch
+            or self.vehicle != "paper"
+        )

@@ -107,6 +107,10 @@ class StateAccessMixin:
         touching the env's own state: ``(next_state, out)`` with ``out`` the step's entries
         (``reward``, ``terminated``, ``success``, ``contact_score``, ``contact_speed``, ...).
         ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does."""
+        if self.config.vehicle != "paper":
+            raise ValueError(
+                f"simulate steps the paper's vehicle only, not vehicle={self.config.vehicle!r}"
+            )
         action = self._validated_action(action, state.batch_size)
         pose, velocity, integral, error, step_count, out = self._transition(
             state["pose"],
