@@ -66,8 +66,8 @@ class Hydrodynamics(NamedTuple):
     entries, row by row; ``surge_linear``, ``surge_quadratic``, ``sway_linear``,
     ``yaw_linear`` the damping coefficients; ``crossflow`` ``rho C_d / 2``;
     ``yaw_quadratic`` the cross-flow drag's moment per ``|r| r`` at zero sway,
-    ``rho C_d / 2 int D |x|^3 dx``; ``forward`` and ``reverse`` each thruster's full thrusts (N, ``reverse`` > 0); ``decay``
-    ``exp(-h / T_thruster)`` over a substep ``h``."""
+    ``rho C_d / 2 int D |x|^3 dx``; ``forward`` and ``reverse`` each thruster's full thrusts
+    (N, ``reverse`` > 0); ``decay`` ``exp(-h / T_thruster)`` over a substep ``h``."""
 
     m11: object
     m22: object
