@@ -45,11 +45,12 @@ def evaluation_world(
     bearing_noise_scale: float | None = None,
     speed_tolerance: float = 0.0,
     filter_params: str | None = None,
+    vehicle: str = "paper",
 ) -> tuple[dict, str]:
     """The env options of an evaluation beyond the policy's pipeline: the USBL noise scales
     and the learned filter the policy was trained with (``info`` of the saved policy), unless
     given (``filter_params="none"``: Table 1's filter); and a line saying what was taken from
-    the policy."""
+    the policy. ``vehicle``: the vehicle flown (:attr:`DockingConfig.vehicle`)."""
     from dockingrl.agents.saving import training_filter
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
@@ -65,7 +66,8 @@ def evaluation_world(
             if value != 1.0:
                 taken.append(f"{name} {value:g}")
         scales.append(value)
-    config = DockingConfig(contact_speed_tolerance=speed_tolerance).scale_usbl_noise(*scales)
+    config = DockingConfig(contact_speed_tolerance=speed_tolerance, vehicle=vehicle)
+    config = config.scale_usbl_noise(*scales)
     kwargs: dict = {"config": config}
     params = filter_params
     if params is None and scenario in FILTERED_OBSERVATION_KEYS and info:

@@ -18,6 +18,7 @@ from dockingrl.cli.arguments import (
     policy_from_args,
     torch_device,
 )
+from dockingrl.env.realism_options import VEHICLES
 from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
 from dockingrl.io import write_json
 from dockingrl.policies import FIGURE_10_CASES, evaluation_world
@@ -51,6 +52,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         bearing_noise_scale=args.bearing_noise_scale,
         speed_tolerance=args.speed_tolerance,
         filter_params=args.filter_params,
+        vehicle=args.vehicle,
     )
     if taken:
         print(taken)
@@ -193,6 +195,13 @@ def add_evaluation_commands(sub) -> None:
         help="default: the agent's training scenario, or 'noise' for the controller",
     )
     ev.add_argument("--episodes", type=COUNT, default=500, help="number of episodes (paper: 500)")
+    ev.add_argument(
+        "--vehicle",
+        choices=list(VEHICLES),
+        default="paper",
+        help="the vehicle flown: the paper's model, the Fossen Sparus II-class model "
+        "(docs/vehicles.md) or either per episode",
+    )
     ev.add_argument("--seed", type=SEED, default=0, help="evaluation seed")
     ev.add_argument("--out", type=output_folder, default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")

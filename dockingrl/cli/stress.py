@@ -14,7 +14,9 @@ from dockingrl.cli.arguments import (
     policy_from_args,
     torch_device,
 )
+from dockingrl.env.config import DockingConfig
 from dockingrl.env.levels import LEVELS
+from dockingrl.env.realism_options import VEHICLES
 from dockingrl.evaluation import describe_machine
 from dockingrl.policies import trained_filter_options
 from dockingrl.provenance import command_line
@@ -45,6 +47,7 @@ def cmd_stress(args: argparse.Namespace) -> int:
         compensate_latency=args.compensate_latency,
         estimate_current=args.estimate_current,
         device=args.device,
+        base=DockingConfig(vehicle=args.vehicle),
         **options,
     )
     wall = time.perf_counter() - start
@@ -76,6 +79,12 @@ def add_stress_command(sub) -> None:
     st.add_argument("--episodes", type=COUNT, default=1000, help="episodes a level")
     st.add_argument("--levels", help=f"comma-separated levels (default: {','.join(LEVELS)})")
     st.add_argument("--seed", type=SEED, default=0)
+    st.add_argument(
+        "--vehicle",
+        choices=list(VEHICLES),
+        default="paper",
+        help="the vehicle of the L levels (F0 and F5 fly the Fossen vehicle, M5 either)",
+    )
     st.add_argument("--gate", type=POSITIVE, default=None, help="EKF chi-square gate (13.8)")
     st.add_argument(
         "--compensate-latency",
