@@ -41,11 +41,13 @@ def steps_per_second(env, seconds: float) -> float:
 
 def pipelines(device: str = "cpu"):
     from dockingrl import make_env
-    from dockingrl.env import DockingEnv
+    from dockingrl.env import DockingConfig, DockingEnv
 
     d = device
     yield "env (noise)", lambda n: DockingEnv(n, seed=0, device=d)
     yield "compound (env + EKF + concat)", lambda n: make_env("compound", n, seed=0, device=d)
+    fossen = DockingConfig(vehicle="fossen")
+    yield "env (noise), Fossen vehicle", lambda n: DockingEnv(n, seed=0, device=d, config=fossen)
     yield (
         "env (noise), compile_step=True",
         lambda n: DockingEnv(n, seed=0, device=d, compile_step=True),
@@ -61,12 +63,15 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096])
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--only", help="run the pipelines whose name holds this text only")
     parser.add_argument("--device", default="cpu", help="torch device of the envs (cpu, cuda)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     print(f"machine: {describe_machine(args.device)}, envs on {args.device}")
     rows = {}
     for name, make in pipelines(args.device):
+        if args.only and args.only not in name:
+            continue
         rows[name] = [steps_per_second(make(n), args.seconds) for n in args.sizes]
     header = "| pipeline | " + " | ".join(f"n={n}" for n in args.sizes) + " |"
     print(header)

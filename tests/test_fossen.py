@@ -365,3 +365,22 @@ def test_the_paper_vehicle_is_unchanged_by_the_option():
         100, policy=_fixed_policy, break_when_any_done=False
     )
     assert torch.equal(a["next", "observation"], b["next", "observation"])
+
+
+def test_eval_and_stress_fly_the_chosen_vehicle(tmp_path, capsys):
+    import json
+
+    from dockingrl.cli import main
+
+    common = ["--episodes", "16", "--quiet", "--threads", "1"]
+    for vehicle in ("paper", "fossen"):
+        out = tmp_path / vehicle
+        assert main(["eval", *common, "--vehicle", vehicle, "--out", str(out)]) == 0
+    rates = [json.loads((tmp_path / v / "eval.json").read_text()) for v in ("paper", "fossen")]
+    assert rates[0]["total_reward"] != rates[1]["total_reward"]
+    assert main(["stress", "--episodes", "8", "--levels", "L0,F0", "--vehicle", "fossen"]) == 0
+    table = capsys.readouterr().out
+    assert "| L0 |" in table and "| F0 |" in table
+    with pytest.raises(SystemExit):
+        main(["eval", "--vehicle", "boat"])
+    assert "invalid choice: 'boat'" in capsys.readouterr().err
