@@ -63,6 +63,32 @@ def test_same_numbers_as_make_env_step_for_step(scenario):
     assert ends >= 3
 
 
+@pytest.mark.parametrize("vehicle", ["fossen", "mixed"])
+@pytest.mark.parametrize("scenario", ["noise", "compound"])
+def test_the_fossen_vehicle_steps_as_make_env_steps_it(scenario, vehicle):
+    """``vehicle=`` flies the Fossen vehicle (or either per episode) through the batched env's
+    own step: the same numbers as the TorchRL pipeline, and a vector env of it too."""
+    short = DockingConfig(max_steps=60, vehicle=vehicle)
+    env = gymnasium.make(ID, scenario=scenario, config=short)
+    assert not env.unwrapped.fast
+    ends = _step_for_step(env, make_env(scenario, 1, seed=11, config=short), 11, 200)
+    assert ends >= 3
+    paper = gymnasium.make(ID, scenario=scenario, config=short.replace(vehicle="paper"))
+    ours, theirs = env.reset(seed=4)[0], paper.reset(seed=4)[0]
+    np.testing.assert_array_equal(ours, theirs)  # the same start; the vehicles then differ
+    action = np.array([0.8, 0.3], dtype=np.float32)
+    for _ in range(10):
+        ours, theirs = env.step(action)[0], paper.step(action)[0]
+    if vehicle == "fossen":
+        assert np.abs(ours - theirs).max() > 1e-3
+    vec = gymnasium.make_vec(ID, num_envs=3, scenario=scenario, vehicle=vehicle)
+    obs, _ = vec.reset(seed=2)
+    assert obs.shape == (3, env.observation_space.shape[0])
+    assert vec.unwrapped.config.vehicle == vehicle
+    with pytest.raises(ValueError, match="step the paper's model only"):
+        gymnasium.make(ID, scenario=scenario, vehicle=vehicle, fast=True)
+
+
 def test_same_numbers_with_every_option(tmp_path):
     ekf = EKFTransform()
     with torch.no_grad():
@@ -164,7 +190,7 @@ def test_refusals_are_one_clear_line():
     # the realism options leave the observation space (a believed current beyond the range)
     from dockingrl.env.levels import level_config
 
-    with pytest.raises(ValueError, match="steps the paper's task only"):
+    with pytest.raises(ValueError, match="steps the paper's task, on either vehicle"):
         DockingVectorEnv(2, "compound", observe_current=True, config=level_config("L5"))
 
 

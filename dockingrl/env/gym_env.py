@@ -27,6 +27,7 @@ import gymnasium
 import numpy as np
 import torch
 from gymnasium import spaces
+from tensordict import TensorDict
 
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.docking import DockingEnv
@@ -44,9 +45,16 @@ RESET_OPTIONS = ("pose", "ocean_current")
 
 #: why a Gymnasium env refuses the realism options
 PAPER_TASK_ONLY = (
-    "the Gymnasium env steps the paper's task only; for the realism options of "
-    "DockingConfig (docs/realism.md) use dockingrl.make_env"
+    "the Gymnasium env steps the paper's task, on either vehicle (vehicle='paper', 'fossen' "
+    "or 'mixed'); for the other realism options of DockingConfig (docs/realism.md) use "
+    "dockingrl.make_env"
 )
+
+
+def gym_task_problem(config: DockingConfig) -> str | None:
+    """Why a Gymnasium env cannot step ``config`` (``None`` if it can): the paper's task on
+    the paper's model or the Fossen vehicle (docs/vehicles.md), no other realism option."""
+    return PAPER_TASK_ONLY if config.replace(vehicle="paper").realistic else None
 
 
 def reading_bounds() -> tuple[np.ndarray, np.ndarray]:
@@ -134,8 +142,16 @@ class DockingGymEnv(gymnasium.Env):
             simulator = DockingEnv(1, config=config, seed=0)
         elif not isinstance(simulator, DockingEnv) or simulator.num_envs != 1:
             raise ValueError(f"simulator must be a DockingEnv of 1 env, got {simulator!r}")
-        if simulator.config.realistic:
-            raise ValueError(PAPER_TASK_ONLY)
+        problem = gym_task_problem(simulator.config)
+        if problem is not None:
+            raise ValueError(problem)
+        #: the Fossen vehicle steps through the batched env's own ``_step``
+        self._through_env = simulator.config.vehicle != "paper"
+        if self._through_env and (fast or compile):
+            raise ValueError(
+                f"vehicle={simulator.config.vehicle!r} steps on tensors through the batched env: "
+                "fast=True and compile=True step the paper's model only"
+            )
         self._env = simulator
         self.config = simulator.config
         self.action_space = action_space(self.config)
@@ -301,9 +317,24 @@ class DockingGymEnv(gymnasium.Env):
         """End the env: a step needs a reset first."""
         self._last_info, self._ended = None, False
 
+    def _observe_step(
+        self, observation: torch.Tensor, current: torch.Tensor, action: torch.Tensor, extra: tuple
+    ) -> tuple[torch.Tensor, tuple]:
+        """The policy's ``(1, k)`` observation after a step from the env's ``observation``, the
+        ``current`` it reports and the applied ``action``, and a scenario's own state ``extra``
+        stepped (a scenario's filter runs here)."""
+        return observation, extra
+
     def _tensor_step_once(self, action):
         applied = torch.from_numpy(self._action(action)).reshape(1, ACTION_DIM)
         sim = self._env
+        if self._through_env:
+            with torch.inference_mode():
+                out = sim._step(TensorDict({"action": applied}, batch_size=[1]))
+                observation, self._extra = self._observe_step(
+                    out["observation"], out["ocean_current"], applied, self._extra
+                )
+            return self._stepped(observation, out)
         with torch.inference_mode():
             noise = sim._sample_noise() if sim.config.noise else None
             state = tuple(getattr(sim, name) for name in _SIMULATOR_STATE)
@@ -313,6 +344,10 @@ class DockingGymEnv(gymnasium.Env):
         for name, value in zip(_SIMULATOR_STATE, state, strict=True):
             setattr(sim, name, value)
         out["ocean_current"], out["step_count"] = state[2], state[5]
+        return self._stepped(observation, out)
+
+    def _stepped(self, observation: torch.Tensor, out: Mapping[str, torch.Tensor]) -> tuple:
+        """The Gymnasium step's five values from a tensor step's observation and outputs."""
         self._td = out
         self._last_info = self._info(out)
         return (

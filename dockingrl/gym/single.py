@@ -23,7 +23,7 @@ from torchrl.envs import TransformedEnv
 
 from dockingrl.env import DockingConfig
 from dockingrl.env.config import config_or_default
-from dockingrl.env.gym_env import PAPER_TASK_ONLY, DockingGymEnv, reading_bounds
+from dockingrl.env.gym_env import DockingGymEnv, gym_task_problem, reading_bounds
 from dockingrl.scenarios import layout_options, make_env, observation_layout
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.ekf import filter_entries, measurement_function, measurement_noise_std
@@ -47,6 +47,7 @@ def scenario_pipeline(
     following_current_fraction: float | None = None,
     lateral_current_fraction: float | None = None,
     near_start_fraction: float | None = None,
+    vehicle: str | None = None,
     compile: bool = False,
 ) -> TransformedEnv:
     """The :func:`dockingrl.make_env` pipeline of the Gymnasium envs' options.
@@ -54,7 +55,9 @@ def scenario_pipeline(
     ``config`` (default: the paper's) gets its USBL noise scaled by ``range_noise_scale`` and
     ``bearing_noise_scale`` (:meth:`DockingConfig.scale_usbl_noise`, as ``dockingrl train``'s
     options of the same names) and the training draws given (``following_current_fraction``,
-    ``lateral_current_fraction``, ``near_start_fraction``; ``None`` keeps ``config``'s).
+    ``lateral_current_fraction``, ``near_start_fraction``; ``None`` keeps ``config``'s) and the
+    vehicle flown (``vehicle``: ``"paper"``, ``"fossen"`` or ``"mixed"``, docs/vehicles.md;
+    ``None`` keeps ``config``'s).
     ``filter_params``, ``ekf_kwargs``, ``observe_current``, ``observe_command``,
     ``observe_filter_std`` and ``compile`` are :func:`dockingrl.make_env`'s."""
     config = config_or_default(config).scale_usbl_noise(range_noise_scale, bearing_noise_scale)
@@ -62,6 +65,7 @@ def scenario_pipeline(
         "following_current_fraction": following_current_fraction,
         "lateral_current_fraction": lateral_current_fraction,
         "near_start_fraction": near_start_fraction,
+        "vehicle": vehicle,
     }
     config = config.replace(**{k: v for k, v in draws.items() if v is not None})
     return make_env(
@@ -81,14 +85,16 @@ def scenario_pipeline(
 
 def gym_pipeline(scenario: str, num_envs: int, **options):
     """:func:`scenario_pipeline` for a Gymnasium env, which seeds at ``reset(seed=...)`` and
-    steps the paper's task only (its observation space bounds the paper's readings)."""
+    steps the paper's task on either vehicle only (its observation space bounds the paper's
+    readings)."""
     if "seed" in options:
         raise ValueError(
             "seed: a Gymnasium env is seeded by reset(seed=...), not by its constructor"
         )
     pipeline = scenario_pipeline(scenario, num_envs, **options)
-    if pipeline.base_env.config.realistic:
-        raise ValueError(PAPER_TASK_ONLY)
+    problem = gym_task_problem(pipeline.base_env.config)
+    if problem is not None:
+        raise ValueError(problem)
     return pipeline
 
 
@@ -165,7 +171,8 @@ class DockingScenarioEnv(DockingGymEnv):
         options: :func:`scenario_pipeline`'s (``config``, ``range_noise_scale``,
             ``bearing_noise_scale``, ``filter_params``, ``ekf_kwargs``, ``observe_current``,
             ``observe_command``, ``observe_filter_std``, ``following_current_fraction``,
-            ``lateral_current_fraction``, ``near_start_fraction``).
+            ``lateral_current_fraction``, ``near_start_fraction``, ``vehicle``: the Fossen
+            vehicle, ``"fossen"``, or either per episode, ``"mixed"``, steps on tensors).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
@@ -187,7 +194,11 @@ class DockingScenarioEnv(DockingGymEnv):
         ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
         if fast is None:
             config = pipeline.base_env.config
-            fast = not compile and (ekf is None or _fast_filter_problem(ekf, config) is None)
+            fast = (
+                not compile
+                and config.vehicle == "paper"
+                and (ekf is None or _fast_filter_problem(ekf, config) is None)
+            )
         super().__init__(simulator=pipeline.base_env, compile=compile, fast=fast)
         self.scenario = scenario
         self.render_mode = render_mode
@@ -264,16 +275,18 @@ class DockingScenarioEnv(DockingGymEnv):
 
     def _tensor_step(self, state, extra, action, noise):
         state, _, observation, out = super()._tensor_step(state, (), action, noise)
-        parts = {"observation": observation, "ocean_current": state[2], "previous_action": action}
+        observation, extra = self._observe_step(observation, state[2], action, extra)
+        return state, extra, observation, out
+
+    def _observe_step(self, observation, current, action, extra):
+        parts = {"observation": observation, "ocean_current": current, "previous_action": action}
         if self._ekf is not None:
             mean, cov, age = extra
-            mean, cov, filtered = self._ekf.filter_step(
-                mean, cov, action, observation, state[2], age
-            )
+            mean, cov, filtered = self._ekf.filter_step(mean, cov, action, observation, current, age)
             extra = (mean, cov, age + 1)
             parts["filtered_observation"] = filtered
             parts["filter_std"] = position_std(cov)
-        return state, extra, self._observation(parts), out
+        return self._observation(parts), extra
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         result = super().reset(seed=seed, options=options)
