@@ -202,3 +202,26 @@ def test_filter_std_spread_refuses_an_unknown_level_and_an_empty_window():
         result = run_script("filter_std_spread.py", *args)
         assert result.returncode == 2
         assert "L9" in result.stderr or "--from 50" in result.stderr
+
+
+def test_vehicle_responses_measure_both_models(tmp_path):
+    """The step responses, turning circle and braking of both vehicles: the paper's model
+    reaches a command faster and turns on the radius of its commands, the Fossen vehicle
+    brakes over a longer distance and barely faster astern than on command 0."""
+    module = load_script("vehicle_responses.py")
+    assert module.main(["--out", str(tmp_path), "--seconds", "6"]) == 0
+    results = json.loads((tmp_path / "responses.json").read_text())
+    assert (tmp_path / "responses.png").stat().st_size > 10_000
+    paper, fossen = results["paper"], results["fossen"]
+    for name in module.STEPS:
+        for key in ("rise_90_u_s", "rise_90_r_s"):
+            if key in paper["steps"][name]:
+                assert paper["steps"][name][key] < fossen["steps"][name][key], (name, key)
+    assert paper["turning_circle"]["radius_m"] == pytest.approx(0.8 / 0.3, rel=0.01)
+    assert abs(fossen["turning_circle"]["drift_angle_deg"]) > abs(
+        paper["turning_circle"]["drift_angle_deg"]
+    )
+    stop, astern = fossen["braking"]
+    assert stop["distance_m"] > 2 * paper["braking"][0]["distance_m"]
+    assert astern["distance_m"] > 0.8 * stop["distance_m"]
+    assert results["wall_clock_s"] > 0 and results["command"].startswith("python scripts/")

@@ -282,7 +282,9 @@ class DockingScenarioEnv(DockingGymEnv):
         parts = {"observation": observation, "ocean_current": current, "previous_action": action}
         if self._ekf is not None:
             mean, cov, age = extra
-            mean, cov, filtered = self._ekf.filter_step(mean, cov, action, observation, current, age)
+            mean, cov, filtered = self._ekf.filter_step(
+                mean, cov, action, observation, current, age
+            )
             extra = (mean, cov, age + 1)
             parts["filtered_observation"] = filtered
             parts["filter_std"] = position_std(cov)
