@@ -20,4 +20,4 @@ if ! "$PYTHON" -c 'import sys, torch; sys.exit(not torch.__version__.startswith(
         || pip_install torch==2.13.0+cpu --extra-index-url "${TORCH_INDEX_URL:-https://download.pytorch.org/whl/cpu}" \
         || pip_install torch==2.13.0
 fi
-pip_install -e ".[dev,grid]"
+pip_install -e ".[dev,grid,stats,onboard]"

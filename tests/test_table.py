@@ -54,7 +54,7 @@ def test_the_table_of_three_seeds(tmp_path):
     out = tmp_path / "out"
     assert (out / "figures_sac.png").stat().st_size > 10_000
     md = (out / "table.md").read_text()
-    assert "| sac | compound | 3 | 94.0 (90.0, 94.0, 98.0) |" in md
+    assert "| sac | compound | tuning seeds 0-2 | 94.0 (90.0, 94.0, 98.0) |" in md
     # only the best seed of each cell keeps its policy
     kept = sorted(p.parent.name for p in tmp_path.glob("*/policy.pt"))
     assert kept == ["sac__compound__s2", "sac__noise__s1"]
@@ -329,3 +329,15 @@ def test_the_faster_claim_is_welchs_test_of_the_episodes():
     [claim] = faster_than_baseline(cells, {"time_success_s": stats(controller)})
     expected = ttest_ind(agent, controller, equal_var=False).pvalue
     assert claim["p_value"] == pytest.approx(expected, rel=1e-9)
+
+
+def test_cells_name_their_seeds_and_held_out_refuses_tuning_seeds(tmp_path):
+    held = [fake_run(tmp_path, "sac", "sac", "compound", s, 99.0) for s in (100, 101, 102)]
+    table = write_table(held, tmp_path / "out", held_out=True)
+    assert table["cells"][0]["seeds_label"] == "held-out seeds 100-102"
+    assert "| sac | compound | held-out seeds 100-102 |" in (tmp_path / "out/table.md").read_text()
+    tuning = fake_run(tmp_path, "sac", "sac", "noise", 0, 60.0)
+    with pytest.raises(ValueError, match=r"training seed\(s\) 0 are not held out"):
+        write_table([*held, tuning], tmp_path / "out2", held_out=True)
+    with pytest.raises(SystemExit, match="are not held out"):
+        main(["table", *map(str, held), str(tuning), "--out", str(tmp_path / "o3"), "--held-out"])

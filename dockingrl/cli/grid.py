@@ -62,6 +62,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
             prune_policies=args.prune_policies,
             command=command_line(),
             baseline=args.baseline,
+            held_out=args.held_out,
         )
         print(f"table written to {args.table}")
     return 0
@@ -76,6 +77,7 @@ def cmd_table(args: argparse.Namespace) -> int:
         prune_policies=args.prune_policies,
         command=command_line(),
         baseline=args.baseline,
+        held_out=args.held_out,
     )
     print(f"{len(table['cells'])} cells written to {args.out} (table.md, table.json, figures)")
     return 0
@@ -174,4 +176,10 @@ def _table_options(parser: argparse.ArgumentParser) -> None:
         metavar="EVAL_JSON",
         help="the managed surge controller's eval.json: test the claim that learned policies "
         "dock faster (e.g. results/managed_surge/eval.json)",
+    )
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help="refuse runs on a training seed below 100: a reported table is on held-out seeds "
+        "(docs/reproduction.md, 'The held-out protocol')",
     )

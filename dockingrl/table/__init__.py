@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dockingrl.evaluation import PAPER_RESULTS
+from dockingrl.evaluation.protocol import require_held_out, seeds_label
 from dockingrl.io import atomic_write, write_json
 from dockingrl.table.checks import field_problem
 from dockingrl.table.claims import (
@@ -209,6 +210,7 @@ def cell(runs: list[dict]) -> dict:
         "algo": algo,
         "scenario": runs[0]["config"]["scenario"],
         "seeds": seeds,
+        "seeds_label": seeds_label(seeds),
         "success_per_seed": success,
         "success_mean": float(np.mean(success)),
         "success_ci95_over_seeds": seed_ci(success),
@@ -248,17 +250,21 @@ def write_table(
     prune_policies: bool = False,
     command: str = "dockingrl table",
     baseline: str | Path | None = None,
+    held_out: bool = False,
 ) -> dict:
     """Read the finished runs among ``run_dirs``, write ``table.json``, ``table.md`` and one
     learning-curve figure per recipe (``figures_<recipe>.png``) into ``out``; returns the
     table. With ``prune_policies``, ``policy.pt`` is deleted from every run folder but the
     best seed's of each cell. ``baseline``: the managed surge controller's ``eval.json``, whose
-    time to dock the learned policies' is tested against."""
+    time to dock the learned policies' is tested against. ``held_out``: refuse a run on a
+    training seed below 100 (:func:`dockingrl.evaluation.protocol.require_held_out`)."""
     out = Path(out)
     base = None if baseline is None else read_baseline(Path(baseline))
     runs = [r for r in (_read(Path(d)) for d in run_dirs) if r is not None]
     if not runs:
         raise ValueError("no finished run (config.json, summary.json and eval.json) given")
+    if held_out:
+        require_held_out((r["config"]["seed"] for r in runs), "dockingrl table --held-out")
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
         key = (r["config"].get("recipe") or r["config"]["algo"], r["config"]["scenario"])

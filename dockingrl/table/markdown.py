@@ -30,7 +30,7 @@ def markdown(table: dict) -> str:
         p = c["paper"] or {}
         t, rw = c["time_docked_s"], c["total_reward"]
         lines.append(
-            f"| {c['recipe']} | {c['scenario']} | {len(c['seeds'])} | "
+            f"| {c['recipe']} | {c['scenario']} | {c['seeds_label']} | "
             f"{c['success_mean']:.1f} ({', '.join(f'{s:.1f}' for s in c['success_per_seed'])}) | "
             f"{_fmt_ci(c['success_ci95_over_seeds'])} | "
             f"{_fmt_ci(c['success_ci95_over_episodes'])} | {p.get('success', '-')} | "

@@ -12,6 +12,7 @@ from dockingrl.agents import Agent, make_agent
 from dockingrl.agents.config import TrainConfig
 from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation.machine import describe_machine, note_shared_cores
+from dockingrl.evaluation.protocol import FINAL_EVAL_OFFSET
 from dockingrl.io import write_json
 from dockingrl.training.checkpointing import Checkpoints
 from dockingrl.training.collection import (
@@ -164,7 +165,7 @@ class Trainer(Checkpoints, Selection):
             **chosen,
         )
         start = time.perf_counter()
-        final = self._evaluate(cfg.final_eval_episodes, cfg.seed + 10_000, progress=self.progress)
+        final = self._evaluate(cfg.final_eval_episodes, cfg.seed + FINAL_EVAL_OFFSET, progress=self.progress)
         final.update(
             algo=cfg.algo,
             level=cfg.train_level,  # the world of the final evaluation: the run's own
