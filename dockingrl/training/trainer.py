@@ -165,7 +165,8 @@ class Trainer(Checkpoints, Selection):
             **chosen,
         )
         start = time.perf_counter()
-        final = self._evaluate(cfg.final_eval_episodes, cfg.seed + FINAL_EVAL_OFFSET, progress=self.progress)
+        seed = cfg.seed + FINAL_EVAL_OFFSET
+        final = self._evaluate(cfg.final_eval_episodes, seed, progress=self.progress)
         final.update(
             algo=cfg.algo,
             level=cfg.train_level,  # the world of the final evaluation: the run's own
