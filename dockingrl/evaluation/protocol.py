@@ -1,6 +1,7 @@
 """The held-out protocol (docs/reproduction.md, "The held-out protocol"): every choice (a
-recipe, a hyperparameter, a stage length, a checkpoint) is made on the tuning seeds 0-9; a reported figure comes from training
-seeds 100 and up, evaluated on episodes whose seeds no choice has seen.
+recipe, a hyperparameter, a stage length, a checkpoint) is made on the tuning seeds 0-9; a
+reported figure comes from training seeds 100 and up, evaluated on episodes whose seeds no
+choice has seen.
 
 Evaluation seeds are offsets from the training seed, one per purpose, so that a policy's
 figures never share episodes with the evaluations that chose it: its run's final evaluation
