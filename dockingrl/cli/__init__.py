@@ -13,6 +13,7 @@ from dockingrl.cli.arguments import Parser, UsageError
 from dockingrl.cli.evaluate import add_evaluation_commands
 from dockingrl.cli.filter import add_filter_commands
 from dockingrl.cli.grid import add_grid_commands
+from dockingrl.cli.onboard import add_onboard_commands
 from dockingrl.cli.stress import add_stress_command
 from dockingrl.cli.train import add_training_commands
 from dockingrl.cli.upgrade import add_upgrade_command
@@ -35,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_grid_commands(sub)
     add_filter_commands(sub)
     add_stress_command(sub)
+    add_onboard_commands(sub)
     add_upgrade_command(sub)
     for command in sub.choices.values():  # --debug also after the command's name
         command.add_argument(

@@ -151,26 +151,48 @@ def _refuse_file_under_a_file(option: str, path: Path) -> None:
         raise UsageError(f"{option} {path}: cannot be written ({blocker} is a file)")
 
 
+#: ``dockingrl export --format``: the suffix of each format's file
+EXPORT_SUFFIXES = {"pt2": ".pt2", "onnx": ".onnx"}
+
+
 def cmd_export(args: argparse.Namespace) -> int:
-    """``dockingrl export``: a policy and its filter as a torch.export program."""
-    from dockingrl.onboard import OnboardPolicy, export_onboard
+    """``dockingrl export``: a policy and its filter as a torch.export or ONNX program."""
+    from dockingrl.onboard import OnboardPolicy, export_onboard, export_onnx
+    from dockingrl.onboard.export import onnx_names
 
     if args.policy == "managed_surge":
         raise UsageError("--policy managed_surge: only a trained policy.pt is exported")
     out = Path(args.out)
     if out.is_dir():
         raise UsageError(
-            f"--out {out}: a folder; give the program's file, e.g. {out / 'policy.pt2'}"
+            f"--out {out}: a folder; give the program's file, e.g. {out / 'policy.onnx'}"
         )
-    if out.suffix != ".pt2":
-        raise UsageError(f"--out {out}: a torch.export program's file ends in .pt2")
+    fmt = args.format or next((f for f, x in EXPORT_SUFFIXES.items() if x == out.suffix), None)
+    if fmt is None or out.suffix != EXPORT_SUFFIXES[fmt]:
+        expected = EXPORT_SUFFIXES.get(fmt) or " or ".join(EXPORT_SUFFIXES.values())
+        raise UsageError(f"--out {out}: a {fmt or 'program'} file ends in {expected}")
     _refuse_file_under_a_file("--out", out)
     policy = OnboardPolicy.from_file(args.policy, filter_params=args.filter_params)
-    path = export_onboard(policy, args.out, batch=args.batch)
+    if fmt == "onnx":
+        try:
+            path = export_onnx(policy, out, batch=args.batch)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        inputs, outputs = onnx_names(policy)
+        print(
+            f"wrote {path}: ONNX opset 18, ({', '.join(inputs)}) -> ({', '.join(outputs)}), "
+            f"{args.batch} vehicle(s), scenario {policy.scenario}; age -1 starts an approach "
+            "(docs/onboard.md)"
+        )
+        return 0
+    ekf = policy.step.ekf
+    sensor_age = ekf is not None and ekf.latency_steps > 0
+    path = export_onboard(policy, out, batch=args.batch, sensor_age=sensor_age)
+    extra = ", sensor_age, history" if sensor_age else ""
     print(
-        f"wrote {path}: torch.export.load(path).module()(z, current, mean, cov, command, age) "
-        f"-> (command, mean, cov, age), {args.batch} vehicle(s), scenario {policy.scenario}; "
-        "age -1 starts an approach"
+        f"wrote {path}: torch.export.load(path).module()(z, current, mean, cov, command, age"
+        f"{extra}) -> (command, mean, cov, age{', history' if sensor_age else ''}), "
+        f"{args.batch} vehicle(s), scenario {policy.scenario}; age -1 starts an approach"
     )
     return 0
 
@@ -265,10 +287,18 @@ def add_evaluation_commands(sub) -> None:
 
     ex = sub.add_parser(
         "export",
-        help="write a trained policy with its filter as a torch.export program for a vehicle",
+        help="write a trained policy with its filter as one ONNX or torch.export program for a "
+        "vehicle",
     )
     ex.add_argument("--policy", required=True, help="policy.pt written by training")
-    ex.add_argument("--out", required=True, help="the program's file (.pt2)")
+    ex.add_argument("--out", required=True, help="the program's file (.onnx or .pt2)")
+    ex.add_argument(
+        "--format",
+        choices=sorted(EXPORT_SUFFIXES),
+        default=None,
+        help="onnx (ONNX Runtime, C++ or Python) or pt2 (torch.export, libtorch); default: "
+        "from --out's suffix",
+    )
     ex.add_argument("--batch", type=COUNT, default=1, help="vehicles per call")
     ex.add_argument(
         "--filter-params",

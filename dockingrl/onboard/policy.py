@@ -20,7 +20,6 @@ keeps the range and bearing its last estimates predicted.
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
@@ -291,6 +290,12 @@ class OnboardPolicy(nn.Module):
             *history,
         )
 
+    @property
+    def filter_state(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The filter's ``(mean, cov)`` after the last :meth:`act` (``None`` before the first
+        of an approach); a scenario without a filter passes zeros and the identity through."""
+        return None if self._state is None else (self._state[0], self._state[1])
+
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Begin a new approach: in every vehicle, or where ``mask`` (``(batch,)`` bool) is
         True. The next :meth:`act` of those initialises the filter from its reading."""
@@ -371,30 +376,4 @@ class OnboardPolicy(nn.Module):
         return value
 
 
-def export_onboard(
-    policy: OnboardPolicy, path: str | Path, batch: int = 1, *, sensor_age: bool = False
-) -> Path:
-    """Write ``policy``'s :class:`OnboardStep` as a ``torch.export`` program (``.pt2``) for
-    ``batch`` vehicles: ``torch.export.load(path).module()(z, current, mean, cov, command,
-    age)`` runs with torch alone (no dockingrl, TorchRL or tensordict), and AOTInductor can
-    compile it for a C++ control loop. With ``sensor_age`` the program takes the sensors' ages
-    ``(batch, 3)`` as a seventh input (sensors at their own rates); a filter that compensates
-    the USBL latency needs them and takes and returns its history
-    ``(batch, latency_steps, 2)`` as an eighth input and fifth output. Written atomically."""
-    from dockingrl.io import atomic_write
-
-    z = torch.zeros(batch, OBS_DIM)
-    z[:, 0] = 20.0
-    mean, cov, command, age, *history = policy.initial_state(batch)
-    if history and not sensor_age:
-        raise ValueError("a filter that compensates the USBL latency needs sensor_age=True")
-    example = (z, torch.zeros(batch, 2), mean, cov, command, age)
-    if sensor_age:
-        example = (*example, torch.zeros(batch, len(SENSORS)), *history)
-    step = copy.deepcopy(policy.step).eval().requires_grad_(False)
-    with torch.no_grad():
-        program = torch.export.export(step, example)
-    return atomic_write(path, lambda tmp: torch.export.save(program, tmp))
-
-
-__all__ = ["OnboardPolicy", "OnboardStep", "check_env_layout", "export_onboard"]
+__all__ = ["OBS_DIM", "OnboardPolicy", "OnboardStep", "check_env_layout"]
