@@ -16,7 +16,7 @@ from dockingrl.env import DockingEnv
 from dockingrl.env.levels import level_config
 from dockingrl.onboard import OnboardPolicy, export_onnx
 from dockingrl.onboard.export import ONNX_OPSET, onnx_names
-from dockingrl.onboard.sensor_log import read_log, record_episode, replay, write_log
+from dockingrl.onboard.sensor_log import read_log, record_episode, replay, ticks, write_log
 
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnxscript")
@@ -56,8 +56,10 @@ def test_the_onnx_program_agrees_with_the_onboard_policy_over_l5_approaches(prog
         replayed = replay(robust_like(), log, L5.dt)
         state = [t.numpy() for t in robust_like().initial_state(1)]
         mean, cov, command, age, history = state
-        z_log = _readings(log)
-        for k, (z, current, ages) in enumerate(z_log):
+        z_log = list(ticks(log, L5.dt))
+        for k, tick in enumerate(z_log):
+            z, current = tick.z[None].numpy(), tick.current[None].numpy()
+            ages = tick.ages[None].numpy()
             feed = dict(
                 zip(inputs, (z, current, mean, cov, command, age, ages, history), strict=True)
             )
@@ -67,25 +69,6 @@ def test_the_onnx_program_agrees_with_the_onboard_policy_over_l5_approaches(prog
         steps += len(z_log)
         approaches += 1
     assert steps > 300 and approaches == 3
-
-
-def _readings(log):
-    """The loop's inputs per tick of a log recorded at every step (every tick has its current)."""
-    from dockingrl.onboard.sensor_log import ENTRIES, SENSORS
-
-    rows, latest, arrived = [], {}, {}
-    for tick, t in enumerate(log.times["current"]):
-        for sensor in SENSORS:
-            for when, value in zip(log.times[sensor], log.values[sensor], strict=True):
-                if when == t:
-                    latest[sensor], arrived[sensor] = value, tick
-        z = np.zeros((1, 6), np.float32)
-        for sensor in SENSORS:
-            z[0, list(ENTRIES[sensor])] = latest[sensor]
-        ages = np.array([[tick - arrived[s] for s in SENSORS]], np.float32) * np.float32(L5.dt)
-        current = np.array([log.values["current"][tick]], np.float32)
-        rows.append((z, current, ages))
-    return rows
 
 
 def test_a_replayed_log_gives_the_env_commands_back_exactly(tmp_path):

@@ -170,11 +170,23 @@ class Replay:
     logged_commands: torch.Tensor | None  # (T, 2) the log's commands at those ticks, if any
 
 
-@torch.no_grad()
-def replay(policy: OnboardPolicy, log: SensorLog, dt: float = 0.2) -> Replay:
-    """Run the onboard loop over ``log`` at the control step ``dt`` (the module's docstring
-    says how messages become readings); ``ValueError`` if a sensor or the current never
-    arrives."""
+@dataclass
+class Tick:
+    """The loop's inputs at one control tick: ``z`` ``(6,)``, the ``current`` ``(2,)``, the
+    sensors' ``ages`` ``(3,)`` (s) and the command the log says was sent then (``None`` if
+    none)."""
+
+    t: float
+    z: torch.Tensor
+    current: torch.Tensor
+    ages: torch.Tensor
+    logged_command: tuple[float, float] | None
+
+
+def ticks(log: SensorLog, dt: float = 0.2):
+    """The loop's inputs tick by tick over ``log`` at the control step ``dt`` (the module's
+    docstring says how messages become readings); ``ValueError`` if a sensor or the current
+    never arrives."""
     missing = [kind for kind in (*SENSORS, "current") if not log.times[kind]]
     if missing:
         raise ValueError(f"the log has no {', '.join(missing)} messages: the loop cannot start")
@@ -184,8 +196,6 @@ def replay(policy: OnboardPolicy, log: SensorLog, dt: float = 0.2) -> Replay:
     cursor = {kind: 0 for kind in MESSAGES}
     latest: dict[str, tuple[float, float]] = {}
     arrived: dict[str, int] = {}
-    policy.reset()
-    times, commands, means, stds, logged = [], [], [], [], []
     tick = 0
     while start + tick * dt <= end + _TICK_SLACK:
         now = start + tick * dt
@@ -202,15 +212,26 @@ def replay(policy: OnboardPolicy, log: SensorLog, dt: float = 0.2) -> Replay:
                     z[entry] = value
             # as the env counts them: whole ticks since arrival, times dt in float32
             ages = torch.tensor([tick - arrived[s] for s in SENSORS], dtype=torch.float32) * dt
-            command = policy.act(z, torch.tensor(latest["current"]), ages)
-            mean, cov = policy.filter_state
-            times.append(now)
-            commands.append(command.clone())
-            means.append(mean[0].clone())
-            stds.append(torch.diagonal(cov[0]).clamp_min(0).sqrt())
             sent = latest.get("command") if arrived.get("command") == tick else None
-            logged.append(torch.tensor(sent if sent is not None else (math.nan, math.nan)))
+            yield Tick(now, z, torch.tensor(latest["current"]), ages, sent)
         tick += 1
+
+
+@torch.no_grad()
+def replay(policy: OnboardPolicy, log: SensorLog, dt: float = 0.2) -> Replay:
+    """Run the onboard loop (``policy``, from a new approach) over ``log`` at the control step
+    ``dt``, tick by tick (:func:`ticks`)."""
+    policy.reset()
+    times, commands, means, stds, logged = [], [], [], [], []
+    for tick in ticks(log, dt):
+        command = policy.act(tick.z, tick.current, tick.ages)
+        mean, cov = policy.filter_state
+        times.append(tick.t)
+        commands.append(command.clone())
+        means.append(mean[0].clone())
+        stds.append(torch.diagonal(cov[0]).clamp_min(0).sqrt())
+        sent = tick.logged_command
+        logged.append(torch.tensor(sent if sent is not None else (math.nan, math.nan)))
     logged_commands = torch.stack(logged) if log.times["command"] else None
     return Replay(
         times, torch.stack(commands), torch.stack(means), torch.stack(stds), logged_commands
@@ -251,4 +272,13 @@ def write_replay(result: Replay, path: str | Path) -> Path:
     return atomic_write(path, write)
 
 
-__all__ = ["SensorLog", "read_log", "record_episode", "replay", "write_log", "write_replay"]
+__all__ = [
+    "SensorLog",
+    "Tick",
+    "read_log",
+    "record_episode",
+    "replay",
+    "ticks",
+    "write_log",
+    "write_replay",
+]
