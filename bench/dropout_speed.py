@@ -1,4 +1,4 @@
-"""SAC updates per second with the critics' ``critic_dropout`` (DroQ) on the ``sac-200k``
+"""SAC updates per second with the critics' ``critic_dropout`` (DroQ) on the ``sac``
 recipe's update paths (``fast_update``, layer-normed critics, 256 x 256, batches of 256):
 without dropout, with ``torch.nn.Dropout``, with dockingrl's :class:`SparseDropout`, each
 eager and through ``compile_update``. Variants are timed in alternating rounds; the figure is

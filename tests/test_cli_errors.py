@@ -260,7 +260,10 @@ def test_use_filter_is_for_the_managed_surge_controller_in_a_filtered_scenario(
         (["eval", "--seed", str(2**70)], "argument --seed: must be an integer <= 4294967295"),
         (["train", "--algo", "sac", "--seed", str(2**70)], "SACConfig.seed: must be <= 4294967295"),
         (["export", "--policy", "managed_surge", "--out", "a.pt2"], "only a trained policy.pt"),
-        (["export", "--policy", "p.pt", "--out", "a.txt"], "--out a.txt: a torch.export program"),
+        (
+            ["export", "--policy", "p.pt", "--out", "a.txt"],
+            "--out a.txt: a program file ends in .pt2 or .onnx",
+        ),
         (["export", "--policy", "p.pt", "--out", "."], "--out .: a folder; give the program"),
         (
             ["train", "--algo", "sac", "--device", "banana"],

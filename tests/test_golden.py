@@ -36,18 +36,27 @@ TINY = dict(
     eval_every=800,
     eval_episodes=3,
     final_eval_episodes=6,
-    select_episodes=4,
-    keep_candidates=2,
     logger="none",
     checkpoint_every=0,
     threads=1,
 )
 TINY_ALGO = {
     "sac": dict(
-        total_steps=2400, start_steps=800, batch_size=32, frames_per_batch=200, compile_update=False
+        total_steps=2400,
+        start_steps=800,
+        batch_size=32,
+        frames_per_batch=200,
+        compile_update=False,
+        select_episodes=4,
+        keep_candidates=2,
     ),
     "td3": dict(
-        total_steps=2400, start_steps=800, batch_size=32, frames_per_batch=200, updates_per_step=0.5
+        total_steps=2400,
+        start_steps=800,
+        batch_size=32,
+        frames_per_batch=200,
+        select_episodes=4,
+        keep_candidates=2,
     ),
     "ppo": dict(total_steps=2400, steps_per_env=100, minibatch_size=100, epochs=2),
 }

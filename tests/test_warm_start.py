@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import pytest
 import torch
@@ -221,20 +220,6 @@ def test_refusals(tiny_runs, tmp_path, short_episodes):
     wider = tiny_config("sac", "compound", tmp_path, init_from=str(mislabelled), hidden=(48, 48))
     with pytest.raises(ArtifactError, match="does not fit this run"):
         Trainer(wider, tmp_path / "w", progress=False).warm_start()
-
-
-def test_the_robust_ft_grid_fine_tunes_each_nominal_seed(tmp_path, monkeypatch):
-    from dockingrl.grid import load_grid
-
-    monkeypatch.chdir(tmp_path)
-    grid = load_grid("robust_ft")
-    assert [t.name for t in grid.trials] == [
-        f"sac-robust-ft__filtered__s{seed}" for seed in range(3)
-    ]
-    for trial in grid.trials:
-        cfg = trial.config(grid.out, 1)
-        assert Path(cfg.init_from) == tmp_path / "runs" / "table6" / f"sac__filtered__s{trial.seed}"
-        assert cfg.init_replay and cfg.train_level == "L5" and cfg.filter_gate > 0
 
 
 def test_an_averaging_run_starts_its_average_at_the_loaded_actor(

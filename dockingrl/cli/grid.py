@@ -93,9 +93,7 @@ def add_grid_commands(sub) -> None:
         "the same command resumes it: finished trials are kept, unfinished ones continue from "
         "their last checkpoint. Exit status: 0 all finished, 1 a trial failed, 3 trials left.",
     )
-    gr.add_argument(
-        "grid", help="a shipped grid name (table6, robust, robust_ft) or a grid YAML file"
-    )
+    gr.add_argument("grid", help="a shipped grid name (table6, robust) or a grid YAML file")
     gr.add_argument("--address", help="an existing Ray cluster to run on (default: local Ray)")
     gr.add_argument(
         "--out", type=output_folder, help="folder of the run folders (default: the grid file's)"

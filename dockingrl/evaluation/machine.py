@@ -38,7 +38,7 @@ def shared_cores_warning(threads: int, load: float | None = None, cores: int | N
     cores with other running work: the load average over the last minute (``load``, else
     ``os.getloadavg``) plus ``threads`` exceeds the ``cores`` (else ``os.cpu_count``) by half a
     core or more; else None. Torch's threads wait for each other at every operation, so one
-    thread that shares a core holds all back: a ``ppo-fast`` run took 95 s at 2 threads beside
+    thread that shares a core holds all back: a 3 M-step PPO run took 95 s at 2 threads beside
     one single-thread job on 2 cores against 11 s at 1 thread (7 s at 2 threads on the idle
     machine; docs/performance.md)."""
     if threads <= 1:
