@@ -19,7 +19,7 @@ FIGURE_10_CASES = [
 ]
 
 
-def load_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
+def resolve_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
     """``managed_surge`` or the path of a policy saved by training. Returns
     ``(policy, name, scenario or None, make_env options the policy was trained with, its
     ``info`` from :func:`dockingrl.agents.saving.load_policy`, empty for the controller)``."""

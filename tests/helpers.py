@@ -14,8 +14,8 @@ from dockingrl.agents.config import make_config
 
 #: the repository's root, whatever folder pytest runs in
 REPO = Path(__file__).resolve().parent.parent
-#: the committed PPO compound policy (``results/agents/ppo_compound/``)
-PPO_COMPOUND_POLICY = REPO / "results" / "agents" / "ppo_compound" / "policy.pt"
+#: a trained PPO compound policy (the first Table 6 grid's, at commit 8aa92b8), a fixture
+PPO_COMPOUND_POLICY = REPO / "tests" / "data" / "ppo_policy" / "policy.pt"
 
 
 def tiny_actor(obs_dim, algo="sac", seed=0):

@@ -314,7 +314,7 @@ def test_agents_modules_write_tensor_outputs_directly_with_torchrls_results(algo
         if patch:  # the stock TensorDictModule path, which goes through from_any
             monkeypatch.setattr(_WritesTensors, "_write_to_tensordict", _stock_write)
         torch.manual_seed(1)
-        agent.learn(data.clone(), num_updates=2)
+        agent.learn(data.clone(), **({} if algo == "ppo" else {"num_updates": 2}))
         monkeypatch.undo()
         return [p.detach().clone() for p in agent.loss.parameters()]
 
@@ -409,7 +409,7 @@ def test_agents_learn_the_same_with_torchrls_tanh_normal(algo, monkeypatch):
             data = env.rollout(8, agent.actor, break_when_any_done=False)
         assert isinstance(agent.actor.get_dist(data[:, 0]), distribution)
         torch.manual_seed(1)
-        agent.learn(data.clone(), num_updates=3)
+        agent.learn(data.clone(), **({} if algo == "ppo" else {"num_updates": 3}))
         collected = [data[key] for key in ("action", "action_log_prob") if key in data.keys()]
         assert len(collected) == (2 if algo == "ppo" else 1)
         return collected + [p.detach().clone() for p in agent.loss.parameters()]
@@ -464,3 +464,13 @@ def test_averaged_actor_follows_the_live_one_by_its_decay(algo):
         assert torch.equal(v, w), k
     with pytest.raises(ValueError, match="actor_average"):
         make_config(algo, "paper", actor_average=1.0).validate()
+
+
+def test_ppo_refuses_a_number_of_updates():
+    """PPO's updates are its epochs over minibatches of a collection: a ``num_updates`` (the
+    off-policy agents' count) is refused rather than ignored."""
+    env = make_env("noise", 2, seed=0)
+    cfg = make_config("ppo", "paper", hidden=(8,), num_envs=2, steps_per_env=4, minibatch_size=8)
+    agent = make_agent(cfg, 6, env.action_spec[0], 30.0)
+    with pytest.raises(ValueError, match="no num_updates"):
+        agent.learn(env.rollout(4, agent.actor, break_when_any_done=False), num_updates=1)

@@ -248,3 +248,18 @@ def test_the_repeated_block_check_finds_a_copied_block_whatever_its_formatting(t
 
 def _indent(text: str) -> str:
     return "".join(f"    {line}\n" for line in text.splitlines())
+
+
+def test_import_dockingrl_loads_no_torch_and_exports_the_public_api():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, dockingrl\n"
+        "print('torch' in sys.modules, sorted(dockingrl.__all__) == "
+        "sorted([*dockingrl._EXPORTS, '__version__']))\n"
+        "names = [n for n in dockingrl._EXPORTS if n != 'SCENARIOS']\n"
+        "print(all(callable(getattr(dockingrl, n)) for n in names))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True", "True"], out.stdout + out.stderr

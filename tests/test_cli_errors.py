@@ -383,7 +383,7 @@ def test_resuming_a_run_with_nothing_to_go_on_from_leaves_it_as_it_was(
     """A run folder whose work a start from scratch would overwrite (a finished run without
     checkpoints, checkpoints without the pointer to a complete one) is refused before anything
     in it is written."""
-    source = Path(__file__).parents[1] / "results" / "agents" / "sac_compound"
+    source = Path(__file__).parent / "data" / "sac_run"
     run = tmp_path / "run"
     run.mkdir()
     for name in ("config.json", "curves.csv", "summary.json"):

@@ -15,7 +15,8 @@ from dockingrl.cli import build_parser
 from dockingrl.cli.arguments import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
-README_MAX_LINES = 150
+README_MAX_LINES = 120
+README_MAX_WIDTH = 120
 #: inline code that starts with one of these is a repository path
 PATH_PREFIXES = ("results/", "docs/", "dockingrl/", "scripts/", "bench/", "tests/")
 
@@ -227,6 +228,8 @@ def test_every_result_folder_has_a_readme_naming_its_command():
 def test_readme_is_short_and_starts_with_the_set_up_commands():
     lines = (ROOT / "README.md").read_text().splitlines()
     assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines"
+    wide = [n for n, line in enumerate(lines, 1) if len(line) > README_MAX_WIDTH]
+    assert not wide, f"README.md lines {wide} are over {README_MAX_WIDTH} characters"
     assert lines[3].startswith("bash main.sh") and lines[4].startswith("bash test.sh")
 
 
@@ -255,3 +258,33 @@ def test_the_checks_find_a_broken_link_path_and_anchor(tmp_path):
         "doc.md: `results/no_such_folder/` does not exist",
         "doc.md: `results/{table6,nothing}/` does not exist",
     ]
+
+
+def test_the_readme_examples_import_only_the_public_api():
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert blocks, "README.md has no Python example"
+    lines = [line for block in blocks for line in block.splitlines()]
+    imports = [line for line in lines if re.match(r"\s*(from|import) ", line)]
+    assert imports and all(line.startswith("from dockingrl import ") for line in imports), imports
+    import dockingrl
+
+    for line in imports:
+        for name in line.removeprefix("from dockingrl import ").split(","):
+            assert name.strip() in dockingrl.__all__, name
+
+
+#: the pages a user reads, each at most :data:`USER_PAGE_MAX_WORDS` words
+USER_PAGES = ("user_guide", "reproduction", "realism", "gymnasium", "architecture", "robustness")
+USER_PAGE_MAX_WORDS = 3000
+
+
+@pytest.mark.parametrize("page", USER_PAGES)
+def test_a_user_page_is_short(page):
+    words = len((ROOT / "docs" / f"{page}.md").read_text().split())
+    assert words <= USER_PAGE_MAX_WORDS, f"docs/{page}.md has {words} words"
+
+
+def test_the_research_notes_are_under_docs_research():
+    assert (ROOT / "docs" / "research" / "README.md").is_file()
+    assert not (ROOT / "docs" / "research_notes.md").exists()

@@ -53,7 +53,7 @@ def test_a_run_trained_with_it_carries_it_everywhere(tmp_path):
 
     from dockingrl.agents.saving import pipeline_options
     from dockingrl.onboard import OnboardPolicy
-    from dockingrl.policies import load_policy
+    from dockingrl.policies import resolve_policy
     from dockingrl.stress import stress_ladder
     from dockingrl.training import env_kwargs, train
 
@@ -80,7 +80,7 @@ def test_a_run_trained_with_it_carries_it_everywhere(tmp_path):
     assert pipeline_options(saved)["ekf_kwargs"] == {"gate": GATE}
     path = tmp_path / "gated" / "policy.pt"
     assert OnboardPolicy.from_file(path).step.ekf.gate == GATE
-    policy, _, scenario, options, _ = load_policy(str(path))
+    policy, _, scenario, options, _ = resolve_policy(str(path))
     assert stress_ladder(policy, scenario, episodes=2, levels=("L1",), **options)["gate"] == GATE
     ungated = make_config("sac", "paper", scenario="filtered").to_dict()
     assert "ekf_kwargs" not in pipeline_options(ungated)

@@ -83,7 +83,7 @@ def test_a_run_trained_with_it_carries_it_to_evaluation_and_the_onboard_policy(t
 
     from dockingrl.agents.saving import pipeline_options
     from dockingrl.onboard import OnboardPolicy
-    from dockingrl.policies import load_policy
+    from dockingrl.policies import resolve_policy
     from dockingrl.stress import stress_ladder
     from dockingrl.training import train
 
@@ -108,7 +108,7 @@ def test_a_run_trained_with_it_carries_it_to_evaluation_and_the_onboard_policy(t
     assert onboard.act(
         torch.tensor([[30.0, 0.1, 0.0, 0.5, 0.0, 0.0]]), torch.zeros(1, 2)
     ).shape == (1, 2)
-    policy, _, scenario, options, _ = load_policy(str(path))
+    policy, _, scenario, options, _ = resolve_policy(str(path))
     assert options["observe_filter_std"] is True
     ladder = stress_ladder(policy, scenario, episodes=2, levels=("L1",), **options)
     assert ladder["levels"][0]["episodes"] == 2

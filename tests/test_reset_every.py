@@ -7,10 +7,9 @@ from helpers import tiny_config
 
 from dockingrl.agents import make_agent
 from dockingrl.agents.config import make_config
-from dockingrl.agents.off_policy import OffPolicyAgent
+from dockingrl.agents.off_policy import OffPolicyAgent, resets_before
 from dockingrl.scenarios import make_env
 from dockingrl.training import Trainer, train
-from dockingrl.training.updates import resets_before
 
 
 def _agent(algo, **options):

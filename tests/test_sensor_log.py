@@ -82,7 +82,7 @@ def test_a_replayed_log_gives_the_env_commands_back_exactly(tmp_path):
 
 
 def test_the_replay_and_record_commands(tmp_path, capsys):
-    policy_file = REPO / "results/agents/ppo_compound/policy.pt"
+    policy_file = REPO / "tests/data/ppo_policy/policy.pt"
     log, out = tmp_path / "log.csv", tmp_path / "commands.csv"
     assert (
         main(
@@ -173,7 +173,7 @@ runpy.run_path({str(REPO / "examples/onnx_control_loop.py")!r}, run_name='__main
 
 
 def test_the_export_command_writes_onnx(tmp_path, capsys):
-    policy_file = str(REPO / "results/agents/ppo_compound/policy.pt")
+    policy_file = str(REPO / "tests/data/ppo_policy/policy.pt")
     out = tmp_path / "policy.onnx"
     assert main(["export", "--policy", policy_file, "--out", str(out)]) == 0
     assert "ONNX opset 18" in capsys.readouterr().out

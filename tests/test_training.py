@@ -89,18 +89,19 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(
     import os
     import signal
 
-    from dockingrl.training import TrainingInterrupted, trainer
+    from dockingrl.agents import OffPolicyAgent
+    from dockingrl.training import TrainingInterrupted
 
     cfg = tiny_config("sac", "compound", tmp_path, checkpoint_every=0)
-    original, batches = trainer.learn_on, []
+    original, batches = OffPolicyAgent.learn_batch, []
 
-    def train_then_signal(agent, cfg, data, frames, batch_frames):
+    def train_then_signal(agent, data, frames, batch_frames):
         batches.append(data.numel())
         if len(batches) == 2:
             os.kill(os.getpid(), signal.SIGTERM)
-        return original(agent, cfg, data, frames, batch_frames)
+        return original(agent, data, frames, batch_frames)
 
-    monkeypatch.setattr(trainer, "learn_on", train_then_signal)
+    monkeypatch.setattr(OffPolicyAgent, "learn_batch", train_then_signal)
     before = signal.getsignal(signal.SIGTERM)
     with pytest.raises(TrainingInterrupted, match="SIGTERM at 200 env steps") as stopped:
         train(cfg, progress=False)
@@ -109,7 +110,7 @@ def test_sigterm_checkpoints_the_last_batch_then_the_run_resumes(
     run = tmp_path / "sac_compound"
     assert json.loads((run / "checkpoints" / "latest.json").read_text())["frames"] == 200
     assert not (run / "policy.pt").exists()
-    monkeypatch.setattr(trainer, "learn_on", original)
+    monkeypatch.setattr(OffPolicyAgent, "learn_batch", original)
     result = train(None, resume=run, progress=False)
     assert result["summary"]["frames"] == cfg.total_steps
     assert (run / "policy.pt").exists()
@@ -438,7 +439,8 @@ def test_linear_lr_schedule_falls_with_progress(tmp_path, algo):
         agent = make_agent(cfg, 6, env.action_spec[0].clone(), 30.0)
         data = collect_once(env, agent.exploration_policy, 64)
         for progress in (0.0, 0.25, 0.75):
-            losses = agent.learn(data, num_updates=1, progress=progress)
+            updates = {} if algo == "ppo" else {"num_updates": 1}
+            losses = agent.learn(data, progress=progress, **updates)
             groups = [g for o in agent.optimizers.values() for g in o.param_groups]
             assert len({g["lr"] for g in groups}) == 1
             rates[schedule, progress] = groups[0]["lr"]
@@ -733,7 +735,7 @@ def test_compensate_latency_reaches_the_training_filter_and_the_saved_policy(
 ):
     from dockingrl import training
     from dockingrl.onboard import OnboardPolicy
-    from dockingrl.policies import load_policy
+    from dockingrl.policies import resolve_policy
     from dockingrl.stress import stress_ladder
 
     cfg = tiny_config("sac", "compound", tmp_path, train_level="L1", compensate_latency=True)
@@ -750,7 +752,7 @@ def test_compensate_latency_reaches_the_training_filter_and_the_saved_policy(
     assert OnboardPolicy.from_file(path).step.ekf.latency_steps == 0  # L0: no latency
     vehicle = OnboardPolicy.from_file(path, config=kwargs["config"])  # the vehicle's latency
     assert vehicle.step.ekf.latency_steps == kwargs["config"].usbl_latency_steps
-    policy, _, scenario, options, _ = load_policy(str(path))
+    policy, _, scenario, options, _ = resolve_policy(str(path))
     ladder = stress_ladder(policy, scenario, episodes=4, levels=("L1",), **options)
     assert ladder["compensate_latency"] is True
     with pytest.raises(ValueError, match="compensate_latency: scenario 'noise' has no filter"):
@@ -944,3 +946,11 @@ def test_periodic_evaluations_log_success_per_third_of_the_current(
     assert [s for s, _ in curves["eval/success_weak"]] == [
         s for s, _ in curves["eval/success_rate"]
     ][1:]
+
+
+def test_the_progress_bar_shows_success_only_once_an_evaluation_has_run():
+    from dockingrl.training.trainer import progress_fields
+
+    before = progress_fields({"time/steps_per_s": 1234.4}, float("nan"))
+    assert before == {"sps": "1234"}
+    assert progress_fields({"time/steps_per_s": 10.0}, 97.6) == {"sps": "10", "success": "98%"}

@@ -1,9 +1,9 @@
 """Policies: the managed surge controller baseline and the SAC / TD3 / PPO agents.
 
-``networks`` (MLPs, critics, actors, ``build_actor``), ``mirror`` (the mirror through the
+``networks`` (MLPs, critics, actors), ``mirror`` (the mirror through the
 docking axis), ``averaging`` (the actor's moving average), ``nstep`` (n-step targets), ``base``
 (the ``Agent``), ``off_policy`` (what SAC and TD3 share), one module per algorithm (``sac``,
-``td3``, ``ppo``) and ``registry`` (``make_agent``)."""
+``td3``, ``ppo``) and ``registry`` (``make_agent``, ``build_actor``)."""
 
 from dockingrl.agents.averaging import ActorAverage
 from dockingrl.agents.base import Agent
@@ -25,7 +25,6 @@ from dockingrl.agents.networks import (
     ObservationScale,
     QValueModule,
     TensorModule,
-    build_actor,
     deterministic_actor,
     make_critic,
     mlp,
@@ -40,7 +39,7 @@ from dockingrl.agents.off_policy import (
     transition_keys,
 )
 from dockingrl.agents.ppo import PPOAgent
-from dockingrl.agents.registry import AGENTS, make_agent
+from dockingrl.agents.registry import AGENTS, agent_class, build_actor, make_agent
 from dockingrl.agents.sac import SACAgent
 from dockingrl.agents.td3 import TD3Agent
 
@@ -63,6 +62,7 @@ __all__ = [
     "SACAgent",
     "TD3Agent",
     "TensorModule",
+    "agent_class",
     "build_actor",
     "config_mirror_signs",
     "deterministic_actor",

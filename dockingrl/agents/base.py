@@ -74,6 +74,24 @@ class Agent:
         """Turn ``data`` (``(num_envs, T)``) into updates; returns mean losses (``losses/...``)."""
         raise NotImplementedError(f"{type(self).__name__} has no learn")
 
+    @classmethod
+    def make_actor(
+        cls, cfg: TrainConfig, obs_dim: int, action_spec: Bounded, scale, mirror
+    ) -> nn.Module:
+        """The policy network of ``cfg`` (what a saved policy holds) for observations of
+        ``obs_dim`` numbers scaled by ``scale``, mirror-symmetric with ``mirror`` signs."""
+        raise NotImplementedError(f"{cls.__name__} has no actor")
+
+    def learn_batch(self, data: TensorDictBase, frames: int, batch_frames: int) -> dict:
+        """The updates that a collected batch of ``batch_frames`` env steps buys, ``frames``
+        counted so far (the batch included), at the learning-rate schedule's share of the run
+        done before it. Returns the mean losses."""
+        raise NotImplementedError(f"{type(self).__name__} has no learn_batch")
+
+    def random_steps(self, frames: int) -> int:
+        """Env steps still to collect with uniformly random actions after ``frames``."""
+        return 0
+
     def restart_episodes(self) -> None:
         """The training env was built anew, its episodes start over: forget what waits for
         their continuation (nothing, unless a subclass carries steps between collections)."""

@@ -18,7 +18,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, get_type_hints
 
-from dockingrl.agents.field_order import TRAIN_FIELDS, in_order
 from dockingrl.agents.network_options import MIRROR_SYMMETRIC, NetworkOptions
 from dockingrl.agents.off_policy_options import OffPolicyOptions, SACOptions, TD3Options
 from dockingrl.agents.option_fields import LR_SCHEDULES, documented, refuse
@@ -58,7 +57,7 @@ TRAIN_GROUPS = (RunOptions, WorldOptions, RewardShaping, NetworkOptions)
 
 
 @dataclass
-class TrainConfig(*TRAIN_GROUPS, in_order(TRAIN_FIELDS, TRAIN_GROUPS)):
+class TrainConfig(*TRAIN_GROUPS):
     """What every training run shares: its world, reward shaping, networks and run."""
 
     algo: str = ""  # set by the subclasses

@@ -1,6 +1,6 @@
 """The networks of SAC, TD3 and PPO from TorchRL's modules: observation scaling, MLPs, the
-Q-network (optionally privileged), the Tanh-Normal and the deterministic actors, and
-:func:`build_actor`, the policy network a saved policy holds."""
+Q-network (optionally privileged), the Tanh-Normal and the deterministic actors (each
+algorithm's ``make_actor`` picks its own)."""
 
 from __future__ import annotations
 
@@ -276,22 +276,3 @@ def deterministic_actor(obs_dim: int, action_spec: Bounded, hidden, scale, mirro
         TensorModule(net, in_keys=["observation"], out_keys=["param"]),
         TanhModule(in_keys=["param"], out_keys=["action"], spec=action_spec),
     )
-
-
-def build_actor(cfg: TrainConfig, obs_dim: int, action_spec: Bounded, max_dist: float):
-    """The policy network of ``cfg.algo`` (what a saved policy holds)."""
-    scale = config_observation_scale(cfg, obs_dim, max_dist)
-    mirror = mirror_observation_signs(cfg, obs_dim)
-    if cfg.algo == "td3":
-        return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror)
-    ppo_options = (
-        {
-            "log_prob": True,
-            "activation": cfg.activation,
-            "state_independent_scale": cfg.state_independent_scale,
-            "orthogonal_init": cfg.orthogonal_init,
-        }
-        if cfg.algo == "ppo"
-        else {}
-    )
-    return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror=mirror, **ppo_options)

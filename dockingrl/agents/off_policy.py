@@ -19,7 +19,7 @@ from torchrl.objectives import LossModule, SoftUpdate
 from dockingrl.agents.base import Agent, adam, scalar, schedule_lr
 from dockingrl.agents.config import OffPolicyConfig, TrainConfig
 from dockingrl.agents.mirror import config_mirror_signs, mirror_transitions
-from dockingrl.agents.networks import PRIVILEGED_KEYS, make_critic
+from dockingrl.agents.networks import PRIVILEGED_KEYS, make_critic, stochastic_actor
 from dockingrl.agents.nstep import NStepWindow
 from dockingrl.agents.off_policy_options import OffPolicyOptions
 from dockingrl.agents.run_options import RunOptions
@@ -274,6 +274,25 @@ class OffPolicyAgent(Agent):
         )
 
     @classmethod
+    def make_actor(cls, cfg: OffPolicyConfig, obs_dim, action_spec, scale, mirror):
+        """A Tanh-Normal policy (SAC's; TD3 overrides it)."""
+        return stochastic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror=mirror)
+
+    def learn_batch(self, data: TensorDictBase, frames: int, batch_frames: int) -> dict:
+        """Up to ``updates_per_step`` updates per env step after ``start_steps``, the networks
+        reset first where a multiple of ``reset_every`` falls within the batch."""
+        cfg = self.config
+        if resets_before(cfg, frames, batch_frames):
+            self.reset_networks()
+        learning_frames = frames - cfg.start_steps
+        target = int(cfg.updates_per_step * learning_frames) if learning_frames > 0 else 0
+        progress = (frames - batch_frames) / cfg.total_steps
+        return self.learn(data, num_updates=max(0, target - self.updates), progress=progress)
+
+    def random_steps(self, frames: int) -> int:
+        return max(0, self.config.start_steps - frames)
+
+    @classmethod
     def make_exploration(
         cls, cfg: OffPolicyConfig, actor: nn.Module, action_spec: Bounded, device
     ) -> nn.Module:
@@ -330,3 +349,13 @@ class OffPolicyAgent(Agent):
     def _update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """The gradient steps of one update on ``batch``; returns the logged values."""
         raise NotImplementedError(f"{type(self).__name__} has no update")
+
+
+def resets_before(cfg: OffPolicyConfig, frames: int, batch_frames: int) -> bool:
+    """Whether the off-policy agent resets its networks before learning on the batch that
+    brings the run to ``frames`` env steps: a multiple of ``reset_every`` falls within the
+    batch, and the batch is not the run's last."""
+    every = cfg.reset_every
+    if not every or frames >= cfg.total_steps:
+        return False
+    return frames // every > (frames - batch_frames) // every

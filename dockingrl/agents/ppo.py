@@ -12,7 +12,7 @@ from torchrl.objectives.value import GAE
 from dockingrl.agents.base import Agent, adam, scalar, schedule_lr
 from dockingrl.agents.config import PPOConfig
 from dockingrl.agents.mirror import mirror_observation_signs, symmetric
-from dockingrl.agents.networks import QValueModule, mlp
+from dockingrl.agents.networks import QValueModule, mlp, stochastic_actor
 from dockingrl.agents.ppo_options import PPOOptions
 
 #: rows of the value network's input per call while estimating advantages with
@@ -75,12 +75,33 @@ class PPOAgent(Agent):
             extra={"generator": generator},
         )
 
+    @classmethod
+    def make_actor(cls, cfg: PPOConfig, obs_dim, action_spec, scale, mirror):
+        """A Gaussian policy with its log-probabilities (the clipped objective's ratio)."""
+        return stochastic_actor(
+            obs_dim,
+            action_spec,
+            cfg.hidden,
+            scale,
+            mirror=mirror,
+            log_prob=True,
+            activation=cfg.activation,
+            state_independent_scale=cfg.state_independent_scale,
+            orthogonal_init=cfg.orthogonal_init,
+        )
+
+    def learn_batch(self, data: TensorDictBase, frames: int, batch_frames: int) -> dict:
+        """PPO's epochs over the batch."""
+        return self.learn(data, progress=(frames - batch_frames) / self.config.total_steps)
+
     def learn(
-        self, data: TensorDictBase, num_updates: int = 0, progress: float = 0.0
+        self, data: TensorDictBase, num_updates: int | None = None, progress: float = 0.0
     ) -> dict[str, float]:
-        """PPO's epochs over ``data`` (``(num_envs, T)``; ``num_updates`` is not used);
-        ``progress`` (the fraction of ``total_steps`` done before ``data``) sets the learning
-        rate of ``lr_schedule="linear"``. Returns mean losses (``losses/...``)."""
+        """PPO's epochs over ``data`` (``(num_envs, T)``): ``epochs`` passes of its minibatches,
+        so ``num_updates`` is refused; ``progress`` (the fraction of ``total_steps`` done before
+        ``data``) sets the learning rate of ``lr_schedule``. Returns mean losses."""
+        if num_updates is not None:
+            raise ValueError("PPO's updates are its epochs over minibatches: no num_updates")
         cfg = self.config
         lr = schedule_lr(self.optimizers.values(), cfg, progress)
         frames = data.numel()

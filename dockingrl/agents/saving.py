@@ -211,7 +211,9 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     ``scenario``, ``config``, ``metadata``, ``observation_layout`` (see :func:`check_layout`),
     ``path`` and ``filter_params`` (the learned filter's payload it was trained with, or
     ``None``: Table 1's filter, or a policy saved before policies carried it, whose
-    ``config["filter_params"]`` names the file). The actor acts deterministically under
+    ``config["filter_params"]`` names the file) and ``env_options``, the
+    :func:`~dockingrl.make_env` options its pipeline needs (:func:`pipeline_options`). The
+    actor acts deterministically under
     ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate` sets). Raises
     :class:`~dockingrl.io.ArtifactError` for a missing, damaged, crafted or older file."""
     payload = read_policy(path)
@@ -220,13 +222,14 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     info["filter_params"] = payload["filter_params"]
     info["observation_layout"] = payload["observation_layout"]
     info["path"] = str(path)
+    info["env_options"] = pipeline_options(payload["config"])
     return actor.to(device).eval(), info
 
 
 def _rebuild(path, payload: dict) -> torch.nn.Module:
     """The actor of a checked policy payload, its weights loaded."""
     from dockingrl.agents.config import CONFIGS
-    from dockingrl.agents.networks import build_actor
+    from dockingrl.agents.registry import build_actor
 
     config = dict(payload["config"])
     if isinstance(payload["state_dict"], Mapping):

@@ -9,6 +9,7 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import TD3Loss
 
 from dockingrl.agents.config import TD3Config
+from dockingrl.agents.networks import deterministic_actor
 from dockingrl.agents.off_policy import FastUpdatePaths, OffPolicyAgent, vmap_ensembles
 
 
@@ -44,6 +45,11 @@ class TwinCriticTD3Loss(FastUpdatePaths, TD3Loss):
 
 class TD3Agent(OffPolicyAgent):
     """Twin delayed DDPG."""
+
+    @classmethod
+    def make_actor(cls, cfg: TD3Config, obs_dim, action_spec, scale, mirror):
+        """A deterministic policy squashed by tanh into the action bounds."""
+        return deterministic_actor(obs_dim, action_spec, cfg.hidden, scale, mirror)
 
     @classmethod
     def make_exploration(cls, cfg: TD3Config, actor, action_spec, device):

@@ -119,17 +119,17 @@ def torch_device(text: str) -> str:
 def policy_from_args(args: argparse.Namespace) -> tuple:
     """The policy that ``--policy`` names (``--use-filter``, on ``--device``; torch set to
     ``--threads`` threads) and the scenario to run it in: ``--scenario``, else the one it was
-    trained in, else ``noise``. Returns :func:`~dockingrl.policies.load_policy`'s ``(policy,
+    trained in, else ``noise``. Returns :func:`~dockingrl.policies.resolve_policy`'s ``(policy,
     name, scenario, options, trained)`` with that scenario."""
     import torch
 
     from dockingrl.evaluation.machine import note_shared_cores
-    from dockingrl.policies import load_policy
+    from dockingrl.policies import resolve_policy
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
     note_shared_cores(args.threads)
     torch.set_num_threads(args.threads)
-    policy, name, trained_scenario, options, trained = load_policy(
+    policy, name, trained_scenario, options, trained = resolve_policy(
         args.policy, use_filter=args.use_filter, device=args.device
     )
     scenario = args.scenario or trained_scenario or "noise"

@@ -1,5 +1,5 @@
 """Training shared by SAC, TD3 and PPO: :func:`train` runs or resumes one, a :class:`Trainer`
-collects with TorchRL's ``Collector`` (:mod:`.collection`), updates (:mod:`.updates`),
+collects with TorchRL's ``Collector`` (:mod:`.collection`), has the agent learn on each batch,
 evaluates and keeps the best actors (:mod:`.selection`), checkpoints (:mod:`.checkpointing`)
 and logs (:mod:`.logger`, wandb offline by default); :mod:`.options` holds what a training
 config adds to the env."""

@@ -43,18 +43,22 @@ def training_env(cfg: TrainConfig, env_kwargs: dict, frames: int):
 
 
 def make_collector(
-    cfg: TrainConfig, env, policy, frames: int, until: int | None = None
+    cfg: TrainConfig,
+    env,
+    policy,
+    frames: int,
+    until: int | None = None,
+    random_steps: int = 0,
 ) -> Collector:
     """The collector of a run that has trained ``frames`` env steps, to ``until`` env steps
-    (``total_steps`` by default): PPO's batches of ``steps_per_env`` per env; SAC's and TD3's
-    of ``frames_per_batch``, random actions until ``start_steps``."""
+    (``total_steps`` by default), in batches of the config's collected transitions, the first
+    ``random_steps`` env steps with uniformly random actions (the agent's
+    :meth:`~dockingrl.agents.base.Agent.random_steps`)."""
     # the collector counts transitions: one per action_repeat env steps
     repeat = cfg.action_repeat
     frames_per_batch = cfg.collected_transitions()
-    random_frames = 0
-    if cfg.algo != "ppo":
-        random_frames = -(-max(0, cfg.start_steps - frames) // repeat)
-        random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
+    random_frames = -(-random_steps // repeat)
+    random_frames = -(-random_frames // frames_per_batch) * frames_per_batch
     until = cfg.total_steps if until is None else until
     remaining = -(-(until - frames) // repeat)
     return Collector(

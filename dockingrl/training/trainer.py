@@ -3,6 +3,7 @@ log and checkpoint, until the run's ``total_steps`` or time budget."""
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -26,7 +27,6 @@ from dockingrl.training.options import env_kwargs, stage_at
 from dockingrl.training.run_folder import code_version
 from dockingrl.training.selection import Selection
 from dockingrl.training.stopping import StopRequests, TrainingInterrupted
-from dockingrl.training.updates import learn_on
 
 
 class Trainer(Checkpoints, Selection):
@@ -100,7 +100,14 @@ class Trainer(Checkpoints, Selection):
         cfg = self.cfg
         set_up = time.perf_counter()
         env = training_env(cfg, kwargs, self.frames)
-        collector = make_collector(cfg, env, self.agent.exploration_policy, self.frames, until)
+        collector = make_collector(
+            cfg,
+            env,
+            self.agent.exploration_policy,
+            self.frames,
+            until,
+            random_steps=self.agent.random_steps(self.frames),
+        )
         self.agent.restart_episodes()
         self.started += time.perf_counter() - set_up
         try:
@@ -109,7 +116,8 @@ class Trainer(Checkpoints, Selection):
                 # during the repeat; counted in full, as the batch stepped them)
                 batch_frames = data.numel() * cfg.action_repeat
                 self.frames += batch_frames
-                metrics = learn_on(self.agent, cfg, data, self.frames, batch_frames)
+                losses = self.agent.learn_batch(data, self.frames, batch_frames)
+                metrics = {f"losses/{k}": v for k, v in losses.items()}
                 ended, ended_metrics = episode_metrics(data)
                 self.episodes += ended
                 metrics.update(ended_metrics)
@@ -129,10 +137,7 @@ class Trainer(Checkpoints, Selection):
                 logger.log(metrics, self.frames)
                 if bar is not None:
                     bar.update(batch_frames)
-                    bar.set_postfix(
-                        sps=f"{metrics['time/steps_per_s']:.0f}",
-                        success=f"{self.last_success:.0f}%",
-                    )
+                    bar.set_postfix(progress_fields(metrics, self.last_success))
                 due = self.checkpoint_due()
                 stopping = stops.signum is not None and self.frames < cfg.total_steps
                 if due or stopping:
@@ -201,3 +206,12 @@ class Trainer(Checkpoints, Selection):
         plot_run(self.run_dir)
         logger.finish(summary)
         return {"summary": summary, "eval": final}
+
+
+def progress_fields(metrics: dict, last_success: float) -> dict:
+    """The progress bar's fields: env steps per second, and the last periodic evaluation's
+    success once one has run."""
+    fields = {"sps": f"{metrics['time/steps_per_s']:.0f}"}
+    if not math.isnan(last_success):
+        fields["success"] = f"{last_success:.0f}%"
+    return fields

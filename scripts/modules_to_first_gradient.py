@@ -1,0 +1,51 @@
+"""The dockingrl modules whose code runs from the command line to the first gradient step of a
+training run: ``python scripts/modules_to_first_gradient.py train --recipe ppo``.
+
+Every call into a dockingrl function is recorded until the first optimiser step, then the run
+stops; the modules are printed in the order they were first entered (module-level code that
+runs at import is left out: importing is not passing through)."""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import threading
+
+
+class FirstStep(Exception):
+    """Raised by the first optimiser step."""
+
+
+def main(argv: list[str]) -> None:
+    import torch
+
+    from dockingrl.cli import main as cli
+
+    seen: dict[str, None] = {}
+
+    def profile(frame, event, arg):
+        if event == "call" and frame.f_code.co_name != "<module>":
+            name = frame.f_globals.get("__name__", "")
+            if name.startswith("dockingrl") and name not in seen:
+                seen[name] = None
+
+    def stop(self, *args, **kwargs):
+        raise FirstStep
+
+    torch.optim.Adam.step = stop
+    with tempfile.TemporaryDirectory() as out:
+        sys.setprofile(profile)
+        threading.setprofile(profile)
+        try:
+            cli([*argv, "--out", out, "--logger", "none"])
+        except (FirstStep, SystemExit):
+            pass
+        finally:
+            sys.setprofile(None)
+    for name in seen:
+        print(name)
+    print(f"{len(seen)} modules")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:] or ["train", "--recipe", "ppo", "--threads", "1"])
