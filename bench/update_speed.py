@@ -367,8 +367,8 @@ def write_paths(algo: str, seconds: float, rounds: int) -> None:
 def fast_paths(algo: str, seconds: float, rounds: int) -> None:
     """``fast_update``'s own paths against TorchRL's in the same update, with the default and
     the plain updates beside them, in alternating rounds: for SAC and TD3 the twin critics in
-    turn (``off_policy.CriticsInTurn``) and the actor's own parameters unswapped
-    (``off_policy.ModuleOwnParams``) against TorchRL's loop and swaps, for PPO the loss
+    turn (``torchrl_adapter.CriticsInTurn``) and the actor's own parameters unswapped
+    (``torchrl_adapter.ModuleOwnParams``) against TorchRL's loop and swaps, for PPO the loss
     calling its modules directly against its functional calls."""
     import dockingrl.agents.ppo as ppo_module
 

@@ -13,7 +13,7 @@ from torchrl.objectives import SoftUpdate, TD3Loss
 
 from dockingrl.agents import make_agent
 from dockingrl.agents.config import make_config
-from dockingrl.agents.off_policy import CriticsInTurn, ModuleOwnParams
+from dockingrl.agents.torchrl_adapter import CriticsInTurn, ModuleOwnParams
 from dockingrl.scenarios import make_env
 
 OBS = 12

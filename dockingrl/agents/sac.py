@@ -7,13 +7,8 @@ from torchrl.objectives import SACLoss
 
 from dockingrl.agents.base import adam
 from dockingrl.agents.config import SACConfig
-from dockingrl.agents.off_policy import FastUpdatePaths, OffPolicyAgent, vmap_ensembles
-
-
-class TwinCriticSACLoss(FastUpdatePaths, SACLoss):
-    """TorchRL's ``SACLoss``, with :class:`FastUpdatePaths` under ``deactivate_vmap``."""
-
-    critics_attr, batched_inputs = "_vmap_qnetworkN0", False
+from dockingrl.agents.off_policy import OffPolicyAgent, vmap_ensembles
+from dockingrl.agents.torchrl_adapter import TwinCriticSACLoss
 
 
 class SACAgent(OffPolicyAgent):

@@ -10,37 +10,8 @@ from torchrl.objectives import TD3Loss
 
 from dockingrl.agents.config import TD3Config
 from dockingrl.agents.networks import deterministic_actor
-from dockingrl.agents.off_policy import FastUpdatePaths, OffPolicyAgent, vmap_ensembles
-
-
-class TwinCriticTD3Loss(FastUpdatePaths, TD3Loss):
-    """TorchRL's ``TD3Loss``, with :class:`FastUpdatePaths` under ``deactivate_vmap``, where
-    the actor's loss also evaluates the first critic only, the one it reads (TorchRL's
-    evaluates both and discards the second's values; same loss, same gradients, one critic
-    pass fewer)."""
-
-    critics_attr, batched_inputs = "_vmap_qvalue_network00", True
-
-    def actor_loss(self, tensordict):
-        if not self.deactivate_vmap:
-            return super().actor_loss(tensordict)
-        weights = self._maybe_get_priority_weight(tensordict)
-        actor_in = tensordict.select(*self.actor_network.in_keys, strict=False)
-        with self.actor_network_params.to_module(self.actor_network, preserve_module_state=False):
-            actor_out = self.actor_network(actor_in)
-        critic_in = actor_out.select(*self.qvalue_network.in_keys, strict=False).unsqueeze(0)
-        first_critic = self._cached_detach_qvalue_network_params[:1]
-        value = self._vmap_qvalue_network00(critic_in, first_critic)
-        value = value.get(self.tensor_keys.state_action_value).squeeze(-1)
-        loss = self._reduce_loss(-value[0], tensordict=tensordict, weights=weights)
-        self._clear_weakrefs(
-            tensordict,
-            "actor_network_params",
-            "qvalue_network_params",
-            "target_actor_network_params",
-            "target_qvalue_network_params",
-        )
-        return loss, {"state_action_value_actor": value.detach()}
+from dockingrl.agents.off_policy import OffPolicyAgent, vmap_ensembles
+from dockingrl.agents.torchrl_adapter import TwinCriticTD3Loss
 
 
 class TD3Agent(OffPolicyAgent):

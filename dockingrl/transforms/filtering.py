@@ -14,7 +14,6 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
-from torchrl.envs.transforms.utils import _get_reset
 
 from dockingrl.env.dynamics import clip_action
 from dockingrl.env.realism import SENSOR_OF_ENTRY
@@ -311,7 +310,7 @@ class EKFTransform(NoiseParameters, Transform):
         if previous_mean is None:
             mean, cov = self.initial_estimate(z, current)
         else:
-            reset = _get_reset(self.parent.reset_keys[0], tensordict)
+            reset = reset_mask(tensordict, self.parent.reset_keys[0])
             reset = reset.reshape(z.shape[:-1])
             mean, cov = self.start_where(
                 reset, previous_mean, tensordict.get(self.cov_key), z, current
@@ -375,3 +374,15 @@ class EKFTransform(NoiseParameters, Transform):
         state_spec.update(self._state_specs(raw))
         input_spec["full_state_spec"] = state_spec
         return input_spec
+
+
+def reset_mask(tensordict: TensorDictBase, key) -> torch.Tensor:
+    """The envs a reset starts anew: the partial-reset mask ``tensordict[key]`` that TorchRL
+    passes to a transform's ``_reset`` (reduced to the batch's dimensions), all envs where
+    there is none."""
+    mask = tensordict.get(key, None)
+    if mask is None:
+        return torch.ones(tensordict.batch_size, dtype=torch.bool, device=tensordict.device)
+    if mask.ndim > tensordict.ndim:
+        mask = mask.flatten(tensordict.ndim, -1).any(-1)
+    return mask
