@@ -12,10 +12,10 @@ def upgrade_file(path: str | Path) -> str:
     """Convert one policy, filter-parameter or checkpoint-state file of an older format (see
     :func:`~dockingrl.agents.saving.upgrade_policy`,
     :func:`~dockingrl.transforms.params.upgrade_filter_params`,
-    :func:`~dockingrl.checkpoint.upgrade_state`); returns the line saying what was done.
+    :func:`~dockingrl.training.checkpointing.upgrade_state`); returns the line saying what was done.
     Raises :class:`~dockingrl.io.ArtifactError` for a file it cannot convert."""
     from dockingrl.agents.saving import upgrade_policy
-    from dockingrl.checkpoint import upgrade_state
+    from dockingrl.training.checkpointing import upgrade_state
     from dockingrl.transforms.params import upgrade_filter_params
 
     found = read_old_artifact(path, "dockingrl file").get("format")

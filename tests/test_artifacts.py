@@ -17,12 +17,12 @@ from tensordict import TensorDict
 
 from dockingrl.agents.config import make_config
 from dockingrl.agents.saving import check_layout, load_policy, read_policy, save_policy
-from dockingrl.checkpoint import latest_checkpoint, read_state
 from dockingrl.cli.upgrade import add_upgrade_command
 from dockingrl.env import DockingConfig
 from dockingrl.io import ArtifactError, atomic_write, read_artifact, save_artifact
 from dockingrl.scenarios import make_env
 from dockingrl.training import Trainer
+from dockingrl.training.checkpointing import latest_checkpoint, read_state
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.params import read_filter_params
 

@@ -3,8 +3,8 @@ filter parameters (and policies): current format, an older one, any other."""
 
 import pytest
 
-from dockingrl.checkpoint import upgrade_state
 from dockingrl.io import ArtifactError, read_to_upgrade, save_artifact
+from dockingrl.training.checkpointing import upgrade_state
 from dockingrl.transforms.params import upgrade_filter_params
 
 FORMAT, OLD = "dockingrl.thing/3", ("dockingrl.thing/2", "dockingrl.thing/1")

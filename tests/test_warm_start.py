@@ -11,8 +11,8 @@ import torch
 from helpers import tiny_config
 
 from dockingrl import training
-from dockingrl.checkpoint import latest_checkpoint, read_state
 from dockingrl.io import ArtifactError
+from dockingrl.training.checkpointing import latest_checkpoint, read_state
 from dockingrl.training.trainer import Trainer
 
 

@@ -23,7 +23,7 @@ from torchrl.envs import TransformedEnv
 
 from dockingrl.env import DockingConfig
 from dockingrl.env.config import config_or_default
-from dockingrl.env.gym_env import DockingGymEnv, gym_task_problem, reading_bounds
+from dockingrl.gym.bare import DockingGymEnv, gym_task_problem, reading_bounds
 from dockingrl.scenarios import layout_options, make_env, observation_layout
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.ekf import filter_entries, measurement_function, measurement_noise_std
@@ -101,7 +101,7 @@ def gym_pipeline(scenario: str, num_envs: int, **options):
 def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.Box:
     """The float32 box of the policy's observation with entries ``layout``
     (:func:`dockingrl.scenarios.observation_layout`): readings as
-    :func:`~dockingrl.env.gym_env.reading_bounds`, the current within ``ocean_current_range``
+    :func:`~dockingrl.gym.bare.reading_bounds`, the current within ``ocean_current_range``
     (one float32 step wider, as it is drawn in float32), the previous command within the
     action bounds and the filter's standard deviations at 0 or more."""
     lows, highs = [], []
@@ -151,7 +151,7 @@ class DockingScenarioEnv(DockingGymEnv):
     ``compound`` (raw first), plus the filter's standard deviations, the current and the
     previous command when observed. For
     the same seed and actions every step gives the same numbers as that TorchRL pipeline.
-    ``info`` is the bare env's (:class:`~dockingrl.env.gym_env.DockingGymEnv`).
+    ``info`` is the bare env's (:class:`~dockingrl.gym.bare.DockingGymEnv`).
 
     Args:
         scenario: ``no_noise``, ``noise``, ``filtered`` or ``compound``.

@@ -13,8 +13,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from torchrl.envs.utils import step_mdp
 
-from dockingrl.env.gym_env import action_space
 from dockingrl.env.specs import ACTION_DIM
+from dockingrl.gym.bare import action_space
 from dockingrl.gym.single import gym_pipeline, observation_space
 from dockingrl.scenarios import layout_options, observation_layout
 

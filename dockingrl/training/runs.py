@@ -154,7 +154,7 @@ def _check_resumable(run_dir: Path) -> None:
     start from scratch would overwrite: a finished run (``summary.json``) or checkpoint
     folders without the ``latest.json`` that names the complete one. A run that stopped
     before its first checkpoint (neither) starts again from its config."""
-    from dockingrl.checkpoint import latest_checkpoint
+    from dockingrl.training.checkpointing import latest_checkpoint
 
     root = run_dir / "checkpoints"
     if root.exists() and not root.is_dir():
