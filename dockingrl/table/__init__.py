@@ -27,6 +27,7 @@ from dockingrl.table.claims import (
     seed_ci,
 )
 from dockingrl.table.markdown import markdown
+from dockingrl.table.reliable import BOOTSTRAP_REPS, iqm, scores_matrix
 
 SCENARIO_ORDER = ("no_noise", "noise", "filtered", "compound")
 #: env steps at which the sample-efficiency column reads the periodic evaluations
@@ -214,6 +215,7 @@ def cell(runs: list[dict]) -> dict:
         "success_per_seed": success,
         "success_mean": float(np.mean(success)),
         "success_ci95_over_seeds": seed_ci(success),
+        "success_iqm": iqm(scores_matrix([success])) if len(success) > 1 else None,
         "success_ci95_over_episodes": [100 * wilson.low, 100 * wilson.high],
         "episodes": sum(episodes),
         "time_docked_s": _pooled([r["eval"]["time_s"] for r in runs]),
@@ -241,6 +243,27 @@ def cell(runs: list[dict]) -> dict:
             )
         ),
     }
+
+
+def aggregates(cells: dict[tuple[str, str], dict]) -> list[dict]:
+    """Per recipe whose cells all have the same number of seeds (two or more): rliable's IQM
+    of success over its runs and scenarios, with a stratified bootstrap interval."""
+    out = []
+    for recipe in sorted({r for r, _ in cells}):
+        mine = [cells[k] for k in sorted(cells) if k[0] == recipe]
+        counts = {len(c["success_per_seed"]) for c in mine}
+        if len(counts) != 1 or counts.pop() < 2:
+            continue
+        scores = scores_matrix([c["success_per_seed"] for c in mine])
+        out.append(
+            {
+                "recipe": recipe,
+                "scenarios": [c["scenario"] for c in mine],
+                "seeds": mine[0]["seeds_label"],
+                **iqm(scores),
+            }
+        )
+    return out
 
 
 def write_table(
@@ -277,11 +300,14 @@ def write_table(
     )
     table = {
         "cells": [cells[k] for k in order],
+        "aggregates": aggregates(cells),
         "claims": claims(cells) + (faster_than_baseline(cells, base) if base else []),
         "statistics": "success_ci95_over_seeds: Student-t interval of the mean over seeds "
-        "(scipy.stats.t; '-' below two seeds; a percentile bootstrap of three seeds would be "
-        "their range, which covers about 3 times in 4); claims over seeds: Welch's t-test "
-        "(scipy.stats.ttest_ind, equal_var=False); success_ci95_over_episodes: Wilson "
+        "(scipy.stats.t; '-' below two seeds); success_iqm and each recipe's IQM over its "
+        "scenarios: rliable's interquartile mean with a stratified bootstrap interval "
+        f"({BOOTSTRAP_REPS} resamples); claims over seeds: rliable's probability of "
+        "improvement with its stratified bootstrap interval (holds where the interval lies "
+        "above 1/2); success_ci95_over_episodes: Wilson "
         "interval over all the cell's final-evaluation episodes; time over docked episodes "
         "(any contact, as the paper's), reward over all episodes, pooled over seeds; the "
         "claim 'docks faster' over successful episodes only; success_at_200k: the first "

@@ -1,20 +1,19 @@
 """The paper's claims about Table 6, tested on its cells: compound against each other scenario
-(difference of the seeds' mean success, Welch's t-test over seeds, the paper's difference
-beside it), success at 200 k env steps per recipe, and the time to dock successfully against the
-managed surge controller (Welch's t-test over episodes). Statistics are scipy's.
+(the difference of the seeds' mean success, and rliable's probability of improvement over seeds
+with its stratified bootstrap interval, :mod:`dockingrl.table.reliable`, the paper's difference
+beside it), success at 200 k env steps per recipe (the same test), and the time to dock
+successfully against the managed surge controller (Welch's t-test over episodes, scipy's: a
+comparison of episodes, not of runs).
 
-Intervals over seeds are Student-t intervals, not bootstrap ones: with three seeds a percentile
-bootstrap of the mean is the seeds' range (each seed is drawn three times in 1 of 27 resamples,
-more than the 2.5 % a tail may hold), which covers the true mean about three times in four, not
-19 in 20. Welch's t-test is what Colas et al. (2018, "How many random seeds?") recommend for
-comparing RL algorithms over a few seeds.
+A cell's interval of its mean over seeds is Student's t (:func:`seed_ci`): a percentile
+bootstrap of the mean of a few seeds is about their range, which covers the true mean less
+often than it says.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ import numpy as np
 from dockingrl.evaluation import PAPER_RESULTS
 from dockingrl.io import first_line
 from dockingrl.table.checks import field_problem
+from dockingrl.table.reliable import compare, improvement_verdict
 
 #: confidence level of every interval
 LEVEL = 0.95
@@ -41,34 +41,6 @@ def seed_ci(values, low: float = 0.0, high: float = 100.0) -> list[float] | None
     return [float(max(lo, low)), float(min(hi, high))]
 
 
-def difference_test(a, b) -> dict | None:
-    """Welch's t-test of mean(a) - mean(b) over seeds (:func:`scipy.stats.ttest_ind`,
-    ``equal_var=False``): ``{"ci95", "p_value"}``. None for fewer than two seeds on a side or
-    no spread on either."""
-    from scipy.stats import ttest_ind
-
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    if a.size < 2 or b.size < 2 or (np.all(a == a[0]) and np.all(b == b[0])):
-        return None
-    with warnings.catch_warnings():  # one side without spread: scipy warns, the test stands
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = ttest_ind(a, b, equal_var=False)
-    ci = res.confidence_interval(LEVEL)
-    return {"ci95": [float(ci.low), float(ci.high)], "p_value": float(res.pvalue)}
-
-
-def _verdict(test: dict | None, seeds: int, holds: str, fails: str) -> str:
-    """The verdict on a difference from its :func:`difference_test` (None: untested) and the
-    fewer seeds of its two sides: ``holds`` above 0, ``fails`` below, else not resolved."""
-    if test is None:
-        return "too few seeds to tell" if seeds < 2 else "not resolved: no spread in seeds"
-    if test["ci95"][0] > 0:
-        return holds
-    if test["ci95"][1] < 0:
-        return fails
-    return "not resolved: the interval contains 0"
-
-
 def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
     """The paper's claims about Table 6, measured on the cells: per recipe, compound against
     each other scenario (difference of mean success over seeds, with its interval), and which
@@ -83,13 +55,9 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
             if c is None:
                 continue
             diff = compound["success_mean"] - c["success_mean"]
-            test = difference_test(compound["success_per_seed"], c["success_per_seed"])
-            ci = None if test is None else test["ci95"]
-            verdict = _verdict(
-                test,
-                min(len(compound["seeds"]), len(c["seeds"])),
-                "holds: compound higher",
-                "fails: compound lower",
+            improvement = compare(compound["success_per_seed"], c["success_per_seed"])
+            verdict = improvement_verdict(
+                improvement, "holds: compound higher", "fails: compound lower"
             )
             paper_c = PAPER_RESULTS.get((compound["algo"], "compound"))
             paper_o = PAPER_RESULTS.get((compound["algo"], other))
@@ -98,8 +66,7 @@ def claims(cells: dict[tuple[str, str], dict]) -> list[dict]:
                     "claim": f"compound >= {other}",
                     "recipe": recipe,
                     "difference_points": diff,
-                    "ci95": ci,
-                    "p_value": None if test is None else test["p_value"],
+                    "probability_of_improvement": improvement,
                     "verdict": verdict,
                     "paper_difference_points": None
                     if paper_c is None or paper_o is None
@@ -146,17 +113,15 @@ def _ahead(claim: str, groups: dict[str, list[float]], claimed, recipe: str) -> 
     means = {k: float(np.mean(v)) for k, v in groups.items()}
     mine = max((k for k in groups if claimed(k)), key=means.get)
     rest = max((k for k in groups if not claimed(k)), key=means.get)
-    test = difference_test(groups[mine], groups[rest])
-    seeds = min(len(groups[mine]), len(groups[rest]))
-    verdict = _verdict(test, seeds, f"holds: {mine} ahead", f"fails: {rest} ahead")
+    improvement = compare(groups[mine], groups[rest])
+    verdict = improvement_verdict(improvement, f"holds: {mine} ahead", f"fails: {rest} ahead")
     return {
         "claim": claim,
         "recipe": recipe or mine,
         "values": means,
         "compared": [mine, rest],
         "difference_points": means[mine] - means[rest],
-        "ci95": None if test is None else test["ci95"],
-        "p_value": None if test is None else test["p_value"],
+        "probability_of_improvement": improvement,
         "verdict": verdict,
     }
 

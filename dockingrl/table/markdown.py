@@ -19,6 +19,14 @@ def _rate(value) -> str:
     return "-" if value is None else f"{value:.1f}"
 
 
+def _improvement(result) -> str:
+    """rliable's probability of improvement with its interval, or ``-``."""
+    if result is None:
+        return "-"
+    low, high = result["ci95"]
+    return f"{result['probability']:.2f} [{low:.2f}, {high:.2f}]"
+
+
 def markdown(table: dict) -> str:
     lines = [
         "| recipe | scenario | seeds | success % (mean) | 95 % CI over seeds | 95 % CI over "
@@ -53,8 +61,20 @@ def markdown(table: dict) -> str:
     ]
     lines += by_current_markdown(table["cells"])
     lines += by_fifth_markdown(table["cells"])
+    if table.get("aggregates"):
+        lines += [
+            "| recipe | scenarios | seeds | IQM success % | 95 % CI (stratified bootstrap) |",
+            "|---|---|---|---|---|",
+        ]
+        for a in table["aggregates"]:
+            lines.append(
+                f"| {a['recipe']} | {', '.join(a['scenarios'])} | {a['seeds']} | "
+                f"{a['iqm']:.1f} | {_fmt_ci(a['ci95'])} |"
+            )
+        lines.append("")
     lines += [
-        "| claim | recipe | difference | 95 % CI | the paper's difference | verdict |",
+        "| claim | recipe | difference | P(improvement) [95 % CI] | the paper's difference "
+        "| verdict |",
         "|---|---|---|---|---|---|",
     ]
     for c in table["claims"]:
@@ -63,14 +83,16 @@ def markdown(table: dict) -> str:
             mine, rest = c["compared"]
             lines.append(
                 f"| {c['claim']} | {c['recipe']} | {mine} - {rest} "
-                f"{c['difference_points']:+.1f} points ({values}) | {_fmt_ci(c['ci95'])} | - | "
+                f"{c['difference_points']:+.1f} points ({values}) | "
+                f"{_improvement(c['probability_of_improvement'])} | - | "
                 f"{c['verdict']} |"
             )
         elif "difference_points" in c:
             paper = c.get("paper_difference_points")
             lines.append(
                 f"| {c['claim']} | {c['recipe']} | {c['difference_points']:+.1f} points | "
-                f"{_fmt_ci(c['ci95'])} | {'-' if paper is None else f'{paper:+.1f} points'} | "
+                f"{_improvement(c['probability_of_improvement'])} | "
+                f"{'-' if paper is None else f'{paper:+.1f} points'} | "
                 f"{c['verdict']} |"
             )
         elif "difference_s" in c:
