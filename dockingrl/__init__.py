@@ -15,8 +15,9 @@ Importing the package also registers the Gymnasium env ``dockingrl/Docking-v0``.
 
 from __future__ import annotations
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from dockingrl.imports import lazy_attributes
 
 __version__ = "0.1.0"
 
@@ -60,17 +61,7 @@ if TYPE_CHECKING:
     from dockingrl.training.runs import train
 
 
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'dockingrl' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_attributes(__name__, _EXPORTS)
 
 
 def _register_gymnasium_env() -> None:

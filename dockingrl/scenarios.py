@@ -5,16 +5,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
-from torchrl.envs import Compose, Transform, TransformedEnv
+if TYPE_CHECKING:  # imported where used: the names and layouts here load without torch
+    import torch
+    from torchrl.envs import Transform, TransformedEnv
 
-from dockingrl.env import DockingConfig, DockingEnv
-from dockingrl.env.config import config_or_default
-from dockingrl.transforms import ActionRepeat, CompoundObservation, EKFTransform, PreviousAction
-from dockingrl.transforms.current_filter import CurrentEstimatingEKF
-from dockingrl.transforms.repeat import check_action_repeat
-from dockingrl.transforms.uncertainty import FilterStd
+    from dockingrl.env import DockingConfig
+    from dockingrl.transforms import EKFTransform
 
 #: scenario name -> what the policy reads as ``observation`` (number of entries)
 SCENARIOS = {
@@ -107,6 +105,8 @@ def mirror_signs(scenario: str, **options: bool) -> torch.Tensor:
     (Sec. 4.1) and the reward (eqs. 4-12: ``e_alpha`` and ``y`` change sign together) are all
     unchanged. So a transition mirrored entry by entry (observations by these signs, the action
     by ``MIRROR_PAIR``, reward and flags as they are) is a transition of the same task."""
+    import torch
+
     layout = observation_layout(scenario, **options)
     return torch.tensor([sign for key in layout for sign in OBSERVATION_PARTS[key]])
 
@@ -118,6 +118,10 @@ def check_mirror_symmetric(env: TransformedEnv) -> None:
     mirror negates with states it keeps (a learned full ``Q``, ``dockingrl learn-filter``).
     The manoeuvre and context terms of a learned ``Q`` and ``R`` are diagonal and read
     mirror-invariant features, so they keep the symmetry."""
+    import torch
+
+    from dockingrl.transforms import EKFTransform
+
     config = env.base_env.config
     for name in ("init_y", "init_heading", "dock_y", "ocean_current_range"):
         low, high = getattr(config, name)
@@ -149,6 +153,9 @@ def make_filter(
     of :class:`EKFTransform`; nothing changes where the latency is 0); with
     ``estimate_current`` it is the filter that estimates the current's error
     (:class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF`, not in the paper)."""
+    from dockingrl.transforms import EKFTransform
+    from dockingrl.transforms.current_filter import CurrentEstimatingEKF
+
     if compensate_latency:
         ekf_kwargs.setdefault("latency_steps", config.usbl_latency_steps)
     ekf_kwargs.setdefault("dt", config.dt)
@@ -214,6 +221,14 @@ def make_env(
             then ``action_repeat`` simulation steps, with their rewards summed. Placed before
             ``transforms``.
     """
+    from torchrl.envs import Compose, TransformedEnv
+
+    from dockingrl.env import DockingEnv
+    from dockingrl.env.config import config_or_default
+    from dockingrl.transforms import ActionRepeat, CompoundObservation, PreviousAction
+    from dockingrl.transforms.repeat import check_action_repeat
+    from dockingrl.transforms.uncertainty import FilterStd
+
     layout = observation_layout(
         scenario,
         observe_current=observe_current,

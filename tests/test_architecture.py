@@ -17,6 +17,7 @@ LAYERS = {
     # 0: the simulated world, and the file formats that import nothing of dockingrl
     "env": 0,
     "io": 0,
+    "imports": 0,
     # 1: the observation pipeline: the EKF and the other transforms, and the scenarios that
     # compose them with the env (their imports are env and transforms alone)
     "transforms": 1,
@@ -24,7 +25,6 @@ LAYERS = {
     # 2: the policies: the managed surge controller and the SAC / TD3 / PPO agents
     "agents": 2,
     # 3: the library that uses the agents: training, evaluation and what is built on them
-    "checkpoint": 3,
     "evaluation": 3,
     "filter_comparison": 3,
     "filter_experiments": 3,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from dockingrl.agents.option_fields import check_ranges, documented, refuse
-from dockingrl.env.checks import MAX_SEED, available_device
+from dockingrl.env.bounds import MAX_SEED
 
 LOGGERS = ("wandb", "csv", "none")
 
@@ -112,6 +112,8 @@ class RunOptions:
         ):
             refuse(self, "run_name", "must be a folder name, without / or \\")
         try:
+            from dockingrl.env.checks import available_device
+
             available_device(self.device, here=False)
         except ValueError:
             refuse(self, "device", "expected cpu, cuda[:N] or mps")

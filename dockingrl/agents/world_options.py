@@ -10,7 +10,6 @@ from dataclasses import dataclass
 from dockingrl.agents.option_fields import check_ranges, documented, refuse
 from dockingrl.env.config import noise_scale_problem
 from dockingrl.env.levels import LEVELS
-from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
 
 
 def curriculum_levels(curriculum: str) -> list[str]:
@@ -103,6 +102,8 @@ class WorldOptions:
 
     def _check_world(self) -> None:
         """Refuse a world field out of its range, naming it."""
+        from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS, SCENARIOS
+
         if self.scenario not in SCENARIOS:
             refuse(self, "scenario", f"unknown scenario; valid: {', '.join(SCENARIOS)}")
         if self.train_level not in LEVELS:

@@ -8,7 +8,7 @@ import argparse
 import math
 from collections.abc import Callable
 
-from dockingrl.env.checks import MAX_SEED
+from dockingrl.env.bounds import MAX_SEED
 
 
 class UsageError(ValueError):

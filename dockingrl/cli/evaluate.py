@@ -19,11 +19,7 @@ from dockingrl.cli.arguments import (
     torch_device,
 )
 from dockingrl.env.realism_options import VEHICLES
-from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
-from dockingrl.io import write_json
-from dockingrl.policies import FIGURE_10_CASES, evaluation_world
 from dockingrl.provenance import command_line, footer_text
-from dockingrl.scenarios import SCENARIOS, layout_options, mirror_signs
 
 #: episodes drawn in a ``--video`` unless ``--video-episodes`` says otherwise
 VIDEO_EPISODES = 3
@@ -31,7 +27,11 @@ VIDEO_EPISODES = 3
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """``dockingrl eval``: a policy's evaluation, success map, trajectories and video."""
+    from dockingrl.evaluation import evaluate, success_map, table_row, trajectories
+    from dockingrl.io import write_json
     from dockingrl.plots import plot_success_map, plot_trajectories
+    from dockingrl.policies import FIGURE_10_CASES, evaluation_world
+    from dockingrl.scenarios import layout_options, mirror_signs
 
     policy, name, scenario, options, trained = policy_from_args(args)
     if trained:
@@ -199,6 +199,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def add_evaluation_commands(sub) -> None:
     """Register ``dockingrl eval`` and ``dockingrl export`` on the CLI's subparsers ``sub``."""
+    from dockingrl.scenarios import SCENARIOS
+
     ev = sub.add_parser(
         "eval",
         help="evaluate the managed surge controller or a saved agent (Tables 6-7, Figs. 9-10)",

@@ -9,8 +9,7 @@ import argparse
 import math
 import time
 from pathlib import Path
-
-import torch
+from typing import TYPE_CHECKING
 
 from dockingrl.cli.arguments import (
     COUNT,
@@ -24,23 +23,16 @@ from dockingrl.cli.arguments import (
     output_folder,
 )
 from dockingrl.env.levels import LEVELS
-from dockingrl.filter_comparison import ppo_filter_comparison
-from dockingrl.filter_experiments import (
-    filter_ablation,
-    filter_episode,
-    learn_filter,
-)
-from dockingrl.filter_learning import (
-    LEARN_R,
-    OBJECTIVES,
-    FilterFit,
-)
-from dockingrl.io import write_json
 from dockingrl.provenance import command_line, footer_text
-from dockingrl.transforms.noise import RANGE_NOISE_FROM
+
+if TYPE_CHECKING:
+    from dockingrl.filter_learning import FilterFit
 
 
 def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    from dockingrl.filter_learning import LEARN_R, FilterFit
+    from dockingrl.transforms.noise import RANGE_NOISE_FROM
+
     d = FilterFit()
     parser.add_argument("--num-envs", type=COUNT, default=d.num_envs, help="envs per rollout batch")
     parser.add_argument("--steps", type=COUNT, default=d.steps, help="steps recorded per env")
@@ -117,6 +109,8 @@ def _check_fit_arguments(args: argparse.Namespace) -> None:
 
 def _fit_options(args: argparse.Namespace, objective: str) -> FilterFit:
     """The fit options of the command line, for ``objective``."""
+    from dockingrl.filter_learning import FilterFit
+
     return FilterFit(
         objective=objective,
         num_envs=args.num_envs,
@@ -144,6 +138,7 @@ def _noise_models(args: argparse.Namespace) -> dict:
 
 def cmd_learn_filter(args: argparse.Namespace) -> int:
     """``dockingrl learn-filter``: one filter fitted and scored on held-out rollouts."""
+    from dockingrl.filter_experiments import learn_filter
     from dockingrl.training import RunLogger
 
     if args.whiteness and args.objective != "nll":
@@ -151,6 +146,8 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
             f"--whiteness penalises the innovations of the nll objective, not {args.objective!r}"
         )
     _check_fit_arguments(args)
+    import torch
+
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -180,9 +177,13 @@ def cmd_learn_filter(args: argparse.Namespace) -> int:
 def cmd_filter_ablation(args: argparse.Namespace) -> int:
     """``dockingrl filter-ablation``: hand-tuned against learned filters, nominal and
     mismatched sensor noise."""
+    from dockingrl.filter_experiments import filter_ablation
+
     if args.whiteness:
         raise UsageError("--whiteness applies to learn-filter, not to the ablation table")
     _check_fit_arguments(args)
+    import torch
+
     torch.set_num_threads(args.threads)
     text = filter_ablation(
         _fit_options(args, "nll"),
@@ -220,6 +221,8 @@ def _check_figure_start(start: list[float], current: list[float]) -> None:
 def cmd_filter_figure(args: argparse.Namespace) -> int:
     """One episode of the managed surge controller (on the EKF estimate) in the compound
     scenario: raw, filtered and true rho, psi, alpha (Figure 5)."""
+    from dockingrl.filter_experiments import filter_episode
+    from dockingrl.io import write_json
     from dockingrl.plots import plot_filter_episode
 
     _check_figure_start(args.start, args.current)
@@ -251,6 +254,8 @@ def cmd_filter_figure(args: argparse.Namespace) -> int:
 
 def add_filter_commands(sub) -> None:
     """Register the filter subcommands on the CLI's subparsers ``sub``."""
+    from dockingrl.filter_learning import OBJECTIVES
+
     ff = sub.add_parser("filter-figure", help="raw vs filtered vs true observation (Figure 5)")
     ff.add_argument("--out", type=output_folder, default="results/filter", help="results folder")
     ff.add_argument("--seed", type=SEED, default=0)
@@ -353,6 +358,7 @@ def cmd_ppo_filter_comparison(args: argparse.Namespace) -> int:
     reading the hand-tuned filter and one the learned filter, and tabulate their final
     500-episode evaluations (``ppo_mismatch.{json,md}``)."""
     from dockingrl.agents.config import parse_overrides
+    from dockingrl.filter_comparison import ppo_filter_comparison
 
     if len(set(args.seeds)) < len(args.seeds):
         raise UsageError(f"--seeds {' '.join(map(str, args.seeds))}: a seed is named twice")

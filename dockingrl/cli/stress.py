@@ -17,14 +17,15 @@ from dockingrl.cli.arguments import (
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.levels import LEVELS
 from dockingrl.env.realism_options import VEHICLES
-from dockingrl.evaluation import describe_machine
-from dockingrl.policies import trained_filter_options
 from dockingrl.provenance import command_line
-from dockingrl.stress import stress_ladder, stress_table, write_stress
 
 
 def cmd_stress(args: argparse.Namespace) -> int:
     """``dockingrl stress``: a policy on the stress ladder's levels."""
+    from dockingrl.evaluation import describe_machine
+    from dockingrl.policies import trained_filter_options
+    from dockingrl.stress import stress_ladder, stress_table, write_stress
+
     policy, name, scenario, options, trained = policy_from_args(args)
     if trained:
         options = trained_filter_options(trained, scenario, options)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from dockingrl.io import ArtifactError
-from dockingrl.upgrade import upgrade_file, upgrade_targets
-
 
 def cmd_upgrade(args: argparse.Namespace) -> int:
+    from dockingrl.io import ArtifactError
+    from dockingrl.upgrade import upgrade_file, upgrade_targets
+
     failed = 0
     for path in args.paths:
         try:

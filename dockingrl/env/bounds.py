@@ -7,6 +7,10 @@ import math
 import numbers
 from typing import NamedTuple
 
+#: the largest seed a user gives (``--seed``, a config's ``seed``): every seed derived from it
+#: (evaluation episodes, the realism draws) still fits the envs' 64-bit generators
+MAX_SEED = 2**32 - 1
+
 
 def is_real(value) -> bool:
     """Whether ``value`` is a real number (a bool is not)."""

@@ -11,10 +11,6 @@ import torch
 from dockingrl.env.dynamics import clip_action
 from dockingrl.env.specs import ACTION_DIM
 
-#: the largest seed a user gives (``--seed``, a config's ``seed``): every seed derived from it
-#: (evaluation episodes, the realism draws) still fits the envs' 64-bit generators
-MAX_SEED = 2**32 - 1
-
 
 def checked_seed(seed) -> int:
     """``seed`` as an int, refused (one line) unless it is an integer in ``[0, 2**63)``, the
