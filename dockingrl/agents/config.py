@@ -237,17 +237,32 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
 }
 
 
-def make_config(algo: str, preset: str = "paper", **overrides) -> TrainConfig:
-    """The config of ``algo`` from a preset, with field overrides, validated."""
+def config_class(algo: str) -> type[TrainConfig]:
+    """The config class of ``algo``; a one-line ``ValueError`` for an unknown algorithm."""
     if algo not in CONFIGS:
         raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
+    return CONFIGS[algo]
+
+
+def option_names(algo: str) -> frozenset[str]:
+    """The fields of ``algo``'s config that a user sets (all but ``algo`` and ``recipe``)."""
+    return frozenset(f.name for f in fields(config_class(algo))) - _NOT_OPTIONS
+
+
+def unknown_options(algo: str, names) -> list[str]:
+    """The names among ``names`` that are no option of ``algo``'s config, sorted: the one
+    check of unknown fields, which every caller words for its input."""
+    return sorted(set(names) - option_names(algo))
+
+
+def make_config(algo: str, preset: str = "paper", **overrides) -> TrainConfig:
+    """The config of ``algo`` from a preset, with field overrides, validated."""
+    cls = config_class(algo)
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; valid: {', '.join(PRESETS)}")
-    cls = CONFIGS[algo]
-    known = {f.name for f in fields(cls)} - _NOT_OPTIONS
-    unknown = set(overrides) - known
+    unknown = unknown_options(algo, overrides)
     if unknown:
-        raise ValueError(f"unknown {algo} option(s): {', '.join(sorted(unknown))}")
+        raise ValueError(f"unknown {algo} option(s): {', '.join(unknown)}")
     cfg = cls(**{**PRESETS[preset][algo], **overrides})
     cfg.validate()
     return cfg
@@ -257,12 +272,9 @@ def check_types(algo: str, values: dict[str, Any]) -> None:
     """Refuse (``ValueError``, one line) a field of ``algo``'s config that is unknown or whose
     value has the wrong type: booleans for bool fields, integers for int fields, numbers for
     float fields, strings for str fields, a list of integers for ``hidden``."""
-    if algo not in CONFIGS:
-        raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
-    hints = get_type_hints(CONFIGS[algo])
-    known = {f.name for f in fields(CONFIGS[algo])} - _NOT_OPTIONS
+    hints = get_type_hints(config_class(algo))
     for name, value in values.items():
-        if name not in known:
+        if unknown_options(algo, [name]):
             raise ValueError(f"unknown {algo} option {name!r}")
         kind = hints[name]
         if kind is bool:
@@ -293,15 +305,12 @@ def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
     """``FIELD=VALUE`` strings to typed overrides of ``algo``'s config (``true``/``false``
     for booleans, comma-separated integers for ``hidden``); raises ``ValueError`` on an
     unknown field or a value of the wrong type."""
-    if algo not in CONFIGS:
-        raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(CONFIGS)}")
-    hints = get_type_hints(CONFIGS[algo])
-    known = {f.name for f in fields(CONFIGS[algo])} - _NOT_OPTIONS
+    hints = get_type_hints(config_class(algo))
     booleans = {"true": True, "1": True, "false": False, "0": False}
     overrides: dict[str, Any] = {}
     for item in items:
         name, sep, value = item.partition("=")
-        if not sep or name not in known:
+        if not sep or unknown_options(algo, [name]):
             raise ValueError(f"{item!r}: not FIELD=VALUE with a field of the {algo} config")
         kind = hints[name]
         try:
@@ -358,12 +367,11 @@ CONFIG_FIELDS = frozenset(f.name for cls in CONFIGS.values() for f in fields(cls
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The config fields given on the command line (``--FIELD VALUE``) for ``args.algo``;
     ``ValueError`` for a field that does not apply to that algorithm."""
-    known = {f.name for f in fields(CONFIGS[args.algo])} - _NOT_OPTIONS
     overrides = {}
     for name, value in vars(args).items():
         if value is None or name not in CONFIG_FIELDS:
             continue
-        if name not in known:
+        if unknown_options(args.algo, [name]):
             raise ValueError(f"--{name.replace('_', '-')} does not apply to {args.algo}")
         overrides[name] = tuple(value) if isinstance(value, list) else value
     return overrides

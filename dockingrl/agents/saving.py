@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import fields
 from math import inf
 from pathlib import Path
 
@@ -150,6 +149,8 @@ def _check_carried_filter(path, payload: dict) -> None:
 
 
 def _check_payload(path, payload: dict, configs: Mapping) -> None:
+    from dockingrl.agents.config import unknown_options
+
     require_keys(path, payload, WHAT, KEYS[:-1])
     algo, config = payload["algo"], payload["config"]
     if not isinstance(algo, str) or algo not in configs:
@@ -159,7 +160,7 @@ def _check_payload(path, payload: dict, configs: Mapping) -> None:
     for key in ("config", "state_dict", "metadata"):
         if not isinstance(payload[key], dict):
             raise ArtifactError(f"{path}: {key} must be a dict (got {payload[key]!r:.60})")
-    extra = sorted(set(config) - {f.name for f in fields(configs[algo])})
+    extra = unknown_options(algo, set(config) - {"algo", "recipe"})
     if extra:
         raise ArtifactError(
             f"{path}: config fields unknown to dockingrl's {algo}: {', '.join(extra)}"

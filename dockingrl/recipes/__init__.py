@@ -21,12 +21,18 @@ Fields given on the command line (or as ``overrides``) take precedence over the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from dockingrl.agents.config import CONFIGS, TrainConfig, check_types
+from dockingrl.agents.config import (
+    CONFIGS,
+    TrainConfig,
+    check_types,
+    config_class,
+    unknown_options,
+)
 
 _KEYS = ("algo", "description", "base", "first_stage", "config")
 #: how deep ``base`` recipes may nest (a deeper chain is taken for a cycle)
@@ -48,9 +54,8 @@ class Recipe:
     def make_config(self, **overrides) -> TrainConfig:
         """The recipe's config with ``overrides`` on top, validated; its ``recipe`` field
         records the recipe's name."""
-        cls = CONFIGS[self.algo]
-        known = {f.name for f in fields(cls)} - {"algo", "recipe"}
-        unknown = sorted(set(overrides) - known)
+        cls = config_class(self.algo)
+        unknown = unknown_options(self.algo, overrides)
         if unknown:
             raise ValueError(f"unknown {self.algo} option(s): {', '.join(unknown)}")
         values = {**self.config, **overrides}
