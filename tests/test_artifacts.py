@@ -513,8 +513,8 @@ def checkpointed(tmp_path):
     """A SAC trainer at 16 frames with 10 transitions in its buffer, checkpointed."""
     t = trainer(tmp_path)
     t.agent.replay_buffer.extend(TensorDict({"observation": torch.randn(10, 6)}, [10]))
-    t.frames, t.episodes = 16, 3
-    path = t.save_checkpoint()
+    t.progress.frames, t.progress.episodes = 16, 3
+    path = t.checkpoints.save()
     return t, path
 
 
@@ -537,7 +537,7 @@ def test_a_checkpoint_is_on_disk_before_latest_json_names_it(tmp_path, monkeypat
 
     monkeypatch.setattr(os, "fsync", record_fsync)
     monkeypatch.setattr(os, "replace", record_replace)
-    path = t.save_checkpoint()
+    path = t.checkpoints.save()
     latest = events.index(("replace", str(path.parent / "latest.json")))
     synced = {name.replace(".tmp/", "/") for kind, name in events[:latest] if kind == "fsync"}
     files = {str(p) for p in path.rglob("*") if p.is_file()}
@@ -551,7 +551,7 @@ def test_a_checkpoint_round_trips_with_its_replay_buffer(tmp_path):
     assert all(name.endswith((".json", ".memmap")) for name in read_state(path)["replay"])
     fresh = trainer(tmp_path)
     assert fresh.load_checkpoint()
-    assert (fresh.frames, fresh.episodes) == (16, 3)
+    assert (fresh.progress.frames, fresh.progress.episodes) == (16, 3)
     assert len(fresh.agent.replay_buffer) == 10
     stored = fresh.agent.replay_buffer.storage[:10]["observation"]
     assert torch.equal(stored, t.agent.replay_buffer.storage[:10]["observation"])

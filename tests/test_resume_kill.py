@@ -209,7 +209,8 @@ class _Recorder:
 def test_a_backend_that_cannot_be_rewritten_is_sent_each_row_once(tmp_path):
     """wandb keeps what it was sent: the rows sent before a kill are not sent again, the rows
     logged after the last checkpoint are sent only by the resumed run."""
-    from dockingrl.training import RunLogger, Trainer
+    from dockingrl.training import RunLogger
+    from dockingrl.training.checkpointing import Checkpoints
 
     def logger(recorder):
         log = RunLogger({}, "none", tmp_path, "run", buffered=True)
@@ -225,9 +226,8 @@ def test_a_backend_that_cannot_be_rewritten_is_sent_each_row_once(tmp_path):
     log.log({"a": 5.0}, 300)  # then the kill: 300 is trained again
     assert first.rows == [(100, "a", 1.0), (100, "b", 2.0), (200, "a", 3.0)]
 
-    trainer = Trainer.__new__(Trainer)
-    trainer.run_dir, trainer.cfg = tmp_path, type("Cfg", (), {"total_steps": 1000})()
-    trainer._drop_curves_after(200)
+    cfg = type("Cfg", (), {"total_steps": 1000})()
+    Checkpoints(tmp_path, cfg, None, None, None, "").drop_curves_after(200)
     second = _Recorder()
     log = logger(second)
     log.sync()

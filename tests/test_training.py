@@ -14,6 +14,7 @@ from dockingrl.env import DockingConfig
 from dockingrl.evaluation import evaluate
 from dockingrl.io import save_artifact
 from dockingrl.training import Trainer, read_curves, train
+from dockingrl.training.checkpointing import Checkpoints
 
 
 @pytest.mark.parametrize("scenario", ["no_noise", "noise", "filtered", "compound"])
@@ -50,7 +51,7 @@ def test_every_algorithm_trains_on_every_scenario(algo, scenario, tiny_runs):
 def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch, short_episodes):
     total = 2 * TINY[algo]["total_steps"]
     cfg = tiny_config(algo, "compound", tmp_path, total_steps=total, threads=2)
-    original = Trainer.save_checkpoint
+    original = Checkpoints.save
     calls = {"n": 0}
 
     def save_then_crash(self):
@@ -58,11 +59,13 @@ def test_interrupted_run_resumes_to_the_same_total(algo, tmp_path, monkeypatch, 
         calls["n"] += 1
         if calls["n"] == 1:
             # a crash some time after the checkpoint: a later step was already logged
-            (self.run_dir / "curves.csv").open("a").write(f"{self.frames + 100},time/updates,1\n")
+            (self.run_dir / "curves.csv").open("a").write(
+                f"{self.progress.frames + 100},time/updates,1\n"
+            )
             raise KeyboardInterrupt("simulated crash after the first checkpoint")
         return path
 
-    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_crash)
+    monkeypatch.setattr(Checkpoints, "save", save_then_crash)
     with pytest.raises(KeyboardInterrupt):
         train(cfg, progress=False)
     run = tmp_path / f"{algo}_compound"

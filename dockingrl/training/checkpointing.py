@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -226,21 +227,41 @@ def first_stage_hint(recipe: str | None) -> str:
     return f", or a run of recipe {first_stage}" if first_stage else ""
 
 
+@dataclass
+class RunProgress:
+    """What a run has done, the counters its checkpoints keep: env steps (``frames``), ended
+    episodes, seconds of training, the env steps of the next periodic evaluation and the next
+    checkpoint (None: none), and the code of each process that trained it."""
+
+    frames: int = 0
+    episodes: int = 0
+    elapsed: float = 0.0
+    next_eval: int = 0
+    next_checkpoint: int | None = None
+    codes: list = field(default_factory=list)
+
+
 class Checkpoints:
-    """The checkpoints of a :class:`~dockingrl.training.Trainer`: what it has trained
-    (``agent``, its replay buffer, the counters, the RNG and the kept candidates), written
-    every ``checkpoint_every`` env steps and restored on resume."""
+    """The checkpoints of one run in ``run_dir``: what it has trained (``agent``, its replay
+    buffer, the ``progress`` counters, the RNG and ``selection``'s kept candidates), written
+    every ``checkpoint_every`` env steps and restored on resume; ``code`` the source this
+    process trains with."""
+
+    def __init__(self, run_dir: Path, cfg, agent, progress: RunProgress, selection, code):
+        self.run_dir, self.cfg, self.agent = run_dir, cfg, agent
+        self.progress, self.selection, self.code = progress, selection, code
 
     @property
-    def checkpoint_root(self) -> Path:
+    def root(self) -> Path:
         return self.run_dir / "checkpoints"
 
-    def save_checkpoint(self) -> Path:
+    def save(self) -> Path:
         """Write a complete checkpoint folder (the format above), then point
         ``latest.json`` at it (one atomic rename), then drop older ones: a crash at any point
         leaves a usable checkpoint."""
 
-        path = self.checkpoint_root / f"step_{self.frames:010d}"
+        progress = self.progress
+        path = self.root / f"step_{progress.frames:010d}"
         tmp = path.with_name(path.name + ".tmp")
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
@@ -248,33 +269,33 @@ class Checkpoints:
             self.agent.replay_buffer.dumps(tmp / "replay")
         state = {
             "agent": self.agent.state_dict(),
-            "frames": self.frames,
-            "episodes": self.episodes,
-            "elapsed": self.elapsed,
-            "next_eval": self.next_eval,
-            "next_checkpoint": self.next_checkpoint,
+            "frames": progress.frames,
+            "episodes": progress.episodes,
+            "elapsed": progress.elapsed,
+            "next_eval": progress.next_eval,
+            "next_checkpoint": progress.next_checkpoint,
             "torch_rng": torch.get_rng_state(),
-            "best": self.best,
-            "candidates": self.candidates,
-            "codes": self.codes,
+            "best": self.selection.best,
+            "candidates": self.selection.candidates,
+            "codes": progress.codes,
         }
         write_state(tmp, state)
         sync_tree(tmp)  # on disk before latest.json names it and the older ones go
         shutil.rmtree(path, ignore_errors=True)
         tmp.rename(path)
-        write_json(self.checkpoint_root / "latest.json", {"path": path.name, "frames": self.frames})
-        for old in self.checkpoint_root.glob("step_*"):
+        write_json(self.root / "latest.json", {"path": path.name, "frames": progress.frames})
+        for old in self.root.glob("step_*"):
             if old != path:
                 shutil.rmtree(old, ignore_errors=True)
         return path
 
-    def load_checkpoint(self) -> bool:
+    def load(self) -> bool:
         """Restore the checkpoint ``latest.json`` names; ``False`` where the run has none.
         Raises :class:`~dockingrl.io.ArtifactError` for a damaged, crafted or older one, or
         one that does not fit this run's agent."""
         from dockingrl.io import ArtifactError
 
-        path = latest_checkpoint(self.checkpoint_root)
+        path = latest_checkpoint(self.root)
         if path is None:
             return False
         state = read_state(path)
@@ -284,17 +305,15 @@ class Checkpoints:
             )
         self._load_agent(path, state, replay=True)
         torch.set_rng_state(state["torch_rng"])
-        self.frames, self.episodes, self.elapsed = (
-            state["frames"],
-            state["episodes"],
-            state["elapsed"],
-        )
-        self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
+        progress = self.progress
+        progress.frames, progress.episodes = state["frames"], state["episodes"]
+        progress.elapsed = state["elapsed"]
+        progress.next_eval, progress.next_checkpoint = state["next_eval"], state["next_checkpoint"]
         earlier = [c for c in state.get("codes", []) if c != self.code]
-        self.codes = [*earlier, self.code]
+        progress.codes = [*earlier, self.code]
         best = state.get("best")
-        self.candidates = state.get("candidates", [best] if best is not None else [])
-        del self.candidates[self.cfg.keep_candidates :]
+        candidates = state.get("candidates", [best] if best is not None else [])
+        self.selection.candidates = candidates[: self.cfg.keep_candidates]
         return True
 
     def _load_agent(self, path: Path, state: dict, replay: bool, warm: bool = False) -> None:
@@ -362,13 +381,14 @@ class Checkpoints:
         self.agent.updates = 0
         return {"run": str(source), "frames": state["frames"]}
 
-    def checkpoint_due(self) -> bool:
+    def due(self) -> bool:
         """Whether the run has reached its next checkpoint (then the one after is set)."""
-        due = self.next_checkpoint is not None and self.frames >= self.next_checkpoint
-        while due and self.next_checkpoint <= self.frames:
-            self.next_checkpoint += self.cfg.checkpoint_every
+        progress = self.progress
+        due = progress.next_checkpoint is not None and progress.frames >= progress.next_checkpoint
+        while due and progress.next_checkpoint <= progress.frames:
+            progress.next_checkpoint += self.cfg.checkpoint_every
         return due
 
-    def _drop_curves_after(self, frames: int) -> None:
+    def drop_curves_after(self, frames: int) -> None:
         """:func:`~dockingrl.training.logger.drop_curves_after` of this run."""
         drop_curves_after(self.run_dir, frames, self.cfg.total_steps)

@@ -184,7 +184,7 @@ def _train_locked(trainer, restored, cfg, run_dir, resume, overrides) -> dict:
                 )
         if set(overrides) & set(_RECORDED_OVERRIDES):
             write_json(run_dir / "config.json", cfg.to_dict())
-        trainer._drop_curves_after(trainer.frames)
+        trainer.checkpoints.drop_curves_after(trainer.frames)
     logger = RunLogger(
         cfg.to_dict(),
         cfg.logger,

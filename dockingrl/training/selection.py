@@ -12,15 +12,18 @@ SELECT_SEED = 1 << 40
 
 
 class Selection:
-    """The evaluations of a :class:`~dockingrl.training.Trainer` (its ``agent``, ``cfg``,
-    ``env_kwargs``, ``frames``): periodic ones, each a candidate for ``keep_best`` (the
-    ``keep_candidates`` best so far in ``candidates``, best first, the earlier of equal scores
-    first, each with the actor's weights then), the choice among them and the final one."""
+    """The evaluations of one run's ``agent`` in the world of ``cfg`` and ``env_kwargs``:
+    periodic ones, each a candidate for ``keep_best`` (the ``keep_candidates`` best so far in
+    ``candidates``, best first, the earlier of equal scores first, each with the actor's
+    weights then), the choice among them and the final one."""
 
-    candidates: list[dict]
-    last_success: float
+    def __init__(self, agent, cfg, env_kwargs: dict) -> None:
+        self.agent, self.cfg, self.env_kwargs = agent, cfg, env_kwargs
+        self.candidates: list[dict] = []
+        #: the last periodic evaluation's success (nan before the first)
+        self.last_success = float("nan")
 
-    def _evaluate(self, episodes: int, seed: int, **kwargs) -> dict:
+    def evaluate(self, episodes: int, seed: int, **kwargs) -> dict:
         """:func:`~dockingrl.evaluation.evaluate` of the policy the agent evaluates and saves,
         in the run's scenario and world."""
         return evaluate(
@@ -33,11 +36,12 @@ class Selection:
             **self.env_kwargs,
         )
 
-    def periodic_eval(self) -> dict[str, float]:
-        m = self._evaluate(self.cfg.eval_episodes, 1_000_000 + self.frames)
+    def periodic_eval(self, frames: int) -> dict[str, float]:
+        """The periodic evaluation at ``frames`` env steps, as the metrics it logs."""
+        m = self.evaluate(self.cfg.eval_episodes, 1_000_000 + frames)
         self.last_success = m["success_rate"]
         if self.cfg.keep_best:
-            self._keep_candidate(m["success_rate"])
+            self.keep_candidate(m["success_rate"], frames)
         logs = {
             "eval/success_rate": m["success_rate"],
             "eval/total_reward": m["total_reward"]["mean"],
@@ -55,17 +59,17 @@ class Selection:
         """The best periodic evaluation kept so far (``keep_best``), or None."""
         return self.candidates[0] if self.candidates else None
 
-    def _keep_candidate(self, success: float) -> None:
+    def keep_candidate(self, success: float, frames: int) -> None:
         if len(self.candidates) >= self.cfg.keep_candidates and not (
             success > self.candidates[-1]["success"]
         ):
             return
         actor = {k: v.detach().cpu().clone() for k, v in self.agent.policy.state_dict().items()}
-        self.candidates.append({"success": success, "frames": self.frames, "actor": actor})
+        self.candidates.append({"success": success, "frames": frames, "actor": actor})
         self.candidates.sort(key=lambda c: -c["success"])  # stable: earlier first on ties
         del self.candidates[self.cfg.keep_candidates :]
 
-    def _select_candidate(self) -> dict:
+    def select_candidate(self) -> dict:
         """Load the kept actor to end with into ``agent.policy``; returns what the summary and
         the policy file record of the choice. With several candidates, each is scored on the
         same ``select_episodes`` validation episodes (seed :data:`SELECT_SEED` + the run's
@@ -77,7 +81,7 @@ class Selection:
             start, scores = time.perf_counter(), []
             for candidate in self.candidates:
                 self.agent.policy.load_state_dict(candidate["actor"])
-                m = self._evaluate(cfg.select_episodes, SELECT_SEED + cfg.seed)
+                m = self.evaluate(cfg.select_episodes, SELECT_SEED + cfg.seed)
                 scores.append((m["success_rate"], m["total_reward"]["mean"]))
             top = max(range(len(scores)), key=lambda i: (*scores[i], -i))
             chosen = self.candidates[top]

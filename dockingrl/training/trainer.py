@@ -15,7 +15,7 @@ from dockingrl.agents.saving import save_policy
 from dockingrl.evaluation.machine import describe_machine, note_shared_cores
 from dockingrl.evaluation.protocol import FINAL_EVAL_OFFSET
 from dockingrl.io import write_json
-from dockingrl.training.checkpointing import Checkpoints
+from dockingrl.training.checkpointing import Checkpoints, RunProgress
 from dockingrl.training.collection import (
     env_shapes,
     episode_metrics,
@@ -29,39 +29,60 @@ from dockingrl.training.selection import Selection
 from dockingrl.training.stopping import StopRequests, TrainingInterrupted
 
 
-class Trainer(Checkpoints, Selection):
-    """Trains one agent on one scenario; see :func:`~dockingrl.training.train`. Its
-    checkpoints are :class:`Checkpoints`', its evaluations :class:`Selection`'s."""
+class Trainer:
+    """Trains one agent on one scenario; see :func:`~dockingrl.training.train`. What it has
+    done is its ``progress`` (:class:`RunProgress`), its evaluations and kept actors its
+    ``selection`` (:class:`Selection`), its checkpoints its ``checkpoints``
+    (:class:`Checkpoints`), all three over the same agent and counters."""
 
     def __init__(
         self, cfg: TrainConfig, run_dir: Path, *, progress: bool = True, command: str = ""
     ) -> None:
-        self.cfg, self.run_dir, self.progress, self.command = cfg, run_dir, progress, command
+        self.cfg, self.run_dir, self.show_progress, self.command = cfg, run_dir, progress, command
         note_shared_cores(cfg.threads)
         torch.set_num_threads(cfg.threads)
-        self.frames = 0
-        self.episodes = 0
-        self.elapsed = 0.0
-        self.next_eval = cfg.eval_every
-        self.next_checkpoint = cfg.checkpoint_every or None
-        self.last_success = float("nan")
-        self.candidates: list[dict] = []
         self.run_id = run_dir.name.replace("__", "-")[-60:]
         #: the source this process trains with (read now: the checkout may move on during a
         #: long run) and, from a resumed checkpoint, what the run's earlier processes ran
         self.code = code_version()
-        self.codes = [self.code]
+        self.progress = RunProgress(
+            next_eval=cfg.eval_every,
+            next_checkpoint=cfg.checkpoint_every or None,
+            codes=[self.code],
+        )
         self.env_kwargs = env_kwargs(cfg)
         self.obs_dim, self.action_spec, self.max_dist = env_shapes(cfg, self.env_kwargs)
         torch.manual_seed(cfg.seed)
         self.agent: Agent = make_agent(
             cfg, self.obs_dim, self.action_spec, self.max_dist, cfg.device
         )
+        self.selection = Selection(self.agent, cfg, self.env_kwargs)
+        self.checkpoints = Checkpoints(
+            run_dir, cfg, self.agent, self.progress, self.selection, self.code
+        )
+
+    @property
+    def frames(self) -> int:
+        """The env steps trained so far."""
+        return self.progress.frames
+
+    @property
+    def candidates(self) -> list[dict]:
+        """The actors kept for ``keep_best`` (:attr:`Selection.candidates`)."""
+        return self.selection.candidates
+
+    def load_checkpoint(self) -> bool:
+        """Restore the run's latest checkpoint (:meth:`Checkpoints.load`)."""
+        return self.checkpoints.load()
+
+    def warm_start(self) -> dict:
+        """Start from ``init_from``'s agent (:meth:`Checkpoints.warm_start`)."""
+        return self.checkpoints.warm_start()
 
     @property
     def out_of_time(self) -> bool:
         """Whether ``time_budget_s`` (if any) is spent."""
-        return 0 < self.cfg.time_budget_s <= self.elapsed
+        return 0 < self.cfg.time_budget_s <= self.progress.elapsed
 
     def run(self, logger: RunLogger) -> None:
         """Train from ``frames`` to ``total_steps`` (or the time budget), logging each batch,
@@ -69,23 +90,23 @@ class Trainer(Checkpoints, Selection):
         checkpoint with :class:`TrainingInterrupted`."""
         cfg = self.cfg
         bar = None
-        if self.progress:
+        if self.show_progress:
             from tqdm.auto import tqdm
 
             bar = tqdm(
                 total=cfg.total_steps,
-                initial=self.frames,
+                initial=self.progress.frames,
                 unit="step",
                 desc=cfg.algo,
                 dynamic_ncols=True,
             )
         #: the clock's zero: ``elapsed`` counts training, not the set-up of the envs
-        self.started = time.perf_counter() - self.elapsed
+        self.started = time.perf_counter() - self.progress.elapsed
         stops = StopRequests()
         try:
             stops.install()
-            while self.frames < cfg.total_steps and not self.out_of_time:
-                level, until = stage_at(cfg, self.frames)
+            while self.progress.frames < cfg.total_steps and not self.out_of_time:
+                level, until = stage_at(cfg, self.progress.frames)
                 # the curriculum's world for its stage; the run's own without a curriculum
                 kwargs = self.env_kwargs if level == cfg.train_level else env_kwargs(cfg, level)
                 self._run_stage(logger, kwargs, until, stops, bar)
@@ -99,14 +120,14 @@ class Trainer(Checkpoints, Selection):
         (the batch that reaches it included), or to the time budget or a stop request."""
         cfg = self.cfg
         set_up = time.perf_counter()
-        env = training_env(cfg, kwargs, self.frames)
+        env = training_env(cfg, kwargs, self.progress.frames)
         collector = make_collector(
             cfg,
             env,
             self.agent.exploration_policy,
-            self.frames,
+            self.progress.frames,
             until,
-            random_steps=self.agent.random_steps(self.frames),
+            random_steps=self.agent.random_steps(self.progress.frames),
         )
         self.agent.restart_episodes()
         self.started += time.perf_counter() - set_up
@@ -115,37 +136,37 @@ class Trainer(Checkpoints, Selection):
                 # env steps: action_repeat per transition (fewer where an episode ended
                 # during the repeat; counted in full, as the batch stepped them)
                 batch_frames = data.numel() * cfg.action_repeat
-                self.frames += batch_frames
-                losses = self.agent.learn_batch(data, self.frames, batch_frames)
+                self.progress.frames += batch_frames
+                losses = self.agent.learn_batch(data, self.progress.frames, batch_frames)
                 metrics = {f"losses/{k}": v for k, v in losses.items()}
                 ended, ended_metrics = episode_metrics(data)
-                self.episodes += ended
+                self.progress.episodes += ended
                 metrics.update(ended_metrics)
-                self.elapsed = time.perf_counter() - self.started
+                self.progress.elapsed = time.perf_counter() - self.started
                 metrics.update(
                     {
-                        "train/episodes": self.episodes,
-                        "time/elapsed_s": self.elapsed,
-                        "time/steps_per_s": self.frames / max(self.elapsed, 1e-9),
+                        "train/episodes": self.progress.episodes,
+                        "time/elapsed_s": self.progress.elapsed,
+                        "time/steps_per_s": self.progress.frames / max(self.progress.elapsed, 1e-9),
                         "time/updates": self.agent.updates,
                     }
                 )
-                if self.frames >= self.next_eval:
-                    metrics.update(self.periodic_eval())
-                    while self.next_eval <= self.frames:
-                        self.next_eval += cfg.eval_every
-                logger.log(metrics, self.frames)
+                if self.progress.frames >= self.progress.next_eval:
+                    metrics.update(self.selection.periodic_eval(self.progress.frames))
+                    while self.progress.next_eval <= self.progress.frames:
+                        self.progress.next_eval += cfg.eval_every
+                logger.log(metrics, self.progress.frames)
                 if bar is not None:
                     bar.update(batch_frames)
-                    bar.set_postfix(progress_fields(metrics, self.last_success))
-                due = self.checkpoint_due()
-                stopping = stops.signum is not None and self.frames < cfg.total_steps
+                    bar.set_postfix(progress_fields(metrics, self.selection.last_success))
+                due = self.checkpoints.due()
+                stopping = stops.signum is not None and self.progress.frames < cfg.total_steps
                 if due or stopping:
-                    self.save_checkpoint()
+                    self.checkpoints.save()
                     logger.flush()
                 if stopping:
-                    raise TrainingInterrupted(stops.signum, self.frames, self.run_dir)
-                if self.out_of_time or self.frames >= until:
+                    raise TrainingInterrupted(stops.signum, self.progress.frames, self.run_dir)
+                if self.out_of_time or self.progress.frames >= until:
                     break
         finally:
             collector.shutdown()
@@ -156,8 +177,8 @@ class Trainer(Checkpoints, Selection):
         ``{"summary", "eval"}``."""
         cfg = self.cfg
         chosen = {}
-        if cfg.keep_best and self.candidates:
-            chosen = self._select_candidate()
+        if cfg.keep_best and self.selection.candidates:
+            chosen = self.selection.select_candidate()
         save_policy(
             self.run_dir / "policy.pt",
             self.agent.policy,
@@ -166,12 +187,12 @@ class Trainer(Checkpoints, Selection):
             self.action_spec,
             self.max_dist,
             filter_params=self.env_kwargs.get("filter_params"),
-            frames=self.frames,
+            frames=self.progress.frames,
             **chosen,
         )
         start = time.perf_counter()
         seed = cfg.seed + FINAL_EVAL_OFFSET
-        final = self._evaluate(cfg.final_eval_episodes, seed, progress=self.progress)
+        final = self.selection.evaluate(cfg.final_eval_episodes, seed, progress=self.show_progress)
         final.update(
             algo=cfg.algo,
             level=cfg.train_level,  # the world of the final evaluation: the run's own
@@ -182,18 +203,18 @@ class Trainer(Checkpoints, Selection):
         summary = {
             "algo": cfg.algo,
             "scenario": cfg.scenario,
-            "frames": self.frames,
+            "frames": self.progress.frames,
             "num_envs": cfg.num_envs,
             "updates": self.agent.updates,
-            "train_wall_clock_s": self.elapsed,
-            "stopped_by_time_budget": self.frames < cfg.total_steps and self.out_of_time,
+            "train_wall_clock_s": self.progress.elapsed,
+            "stopped_by_time_budget": self.progress.frames < cfg.total_steps and self.out_of_time,
             "final_eval_wall_clock_s": time.perf_counter() - start,
             "success_rate": final["success_rate"],
             **chosen,
             "machine": describe_machine(cfg.device),
             "command": self.command,
             "code": self.code,
-            **({"code_history": self.codes} if len(self.codes) > 1 else {}),
+            **({"code_history": self.progress.codes} if len(self.progress.codes) > 1 else {}),
         }
         write_json(self.run_dir / "summary.json", summary)
         logger.log(
@@ -201,7 +222,7 @@ class Trainer(Checkpoints, Selection):
                 "eval/final_success_rate": final["success_rate"],
                 "eval/final_total_reward": final["total_reward"]["mean"],
             },
-            self.frames,
+            self.progress.frames,
         )
         plot_run(self.run_dir)
         logger.finish(summary)
