@@ -5,6 +5,7 @@ only its argument types; no module grows past 400 lines but those still to split
 block of code of 6 lines or more stands in two places."""
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -263,3 +264,20 @@ def test_import_dockingrl_loads_no_torch_and_exports_the_public_api():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "True", "True"], out.stdout + out.stderr
+
+
+def test_no_code_branches_on_an_algorithm_name():
+    """The training loop, the networks and the collection ask the agent (its class's
+    ``make_actor``, ``learn_batch``, ``random_steps``), never compare a config's ``algo``."""
+    name = r"[\"']"
+    branch = re.compile(
+        rf"\balgo\s*[!=]=\s*{name}|{name}\s*[!=]=\s*[\w.]*\balgo\b"
+        rf"|\balgo\s+(not\s+)?in\s*[(\[{{]\s*{name}"
+    )
+    found = [
+        f"{path.relative_to(PACKAGE)}:{n}"
+        for path in PACKAGE.rglob("*.py")
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if branch.search(line.split("#")[0])
+    ]
+    assert found == []
