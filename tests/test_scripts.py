@@ -225,3 +225,38 @@ def test_vehicle_responses_measure_both_models(tmp_path):
     assert stop["distance_m"] > 2 * paper["braking"][0]["distance_m"]
     assert astern["distance_m"] > 0.8 * stop["distance_m"]
     assert results["wall_clock_s"] > 0 and results["command"].startswith("python scripts/")
+
+
+def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(tmp_path, monkeypatch):
+    import shutil
+
+    script = load_script("realistic_table6.py")
+    monkeypatch.setattr(script, "LEVELS", {"L5": 6, "F0": 4})
+    runs = tmp_path / "runs"
+    for seed in (100, 101, 3):  # seed 3 is a tuning seed: left out
+        run = runs / f"ppo__compound__s{seed}"
+        run.mkdir(parents=True)
+        shutil.copy(ROOT / "tests" / "data" / "ppo_policy" / "policy.pt", run / "policy.pt")
+        config = {"algo": "ppo", "recipe": "ppo", "scenario": "compound", "seed": seed}
+        (run / "config.json").write_text(json.dumps(config))
+        (run / "summary.json").write_text("{}")
+        (run / "eval.json").write_text(json.dumps({"episodes": 10, "success_rate": 90.0}))
+    out = tmp_path / "out"
+    assert script.main(["--runs", str(runs), "--out", str(out)]) == 0
+    done = sorted(p.name for p in (out / "realistic").iterdir())
+    assert done == ["ppo__compound__s100.json", "ppo__compound__s101.json"]
+    trial = json.loads((out / "realistic" / done[0]).read_text())
+    assert trial["evaluation_seed"] == 20_100
+    assert {k: v["episodes"] for k, v in trial["levels"].items()} == {"L5": 6, "F0": 4}
+    tables = json.loads((out / "realistic.json").read_text())
+    (cell,) = tables["F0"]
+    assert cell["seeds"] == [100, 101] and cell["episodes"] == 8
+    assert (
+        sum(cell["failures"].values()) + sum(round(s * 4 / 100) for s in cell["success_per_seed"])
+        == 8
+    )
+    assert "held-out seeds 100-101" in (out / "realistic.md").read_text()
+    # a second run evaluates nothing again
+    (out / "realistic" / done[0]).write_text(json.dumps({**trial, "recipe": "kept"}))
+    assert script.main(["--runs", str(runs), "--out", str(out)]) == 0
+    assert json.loads((out / "realistic" / done[0]).read_text())["recipe"] == "kept"
