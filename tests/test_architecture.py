@@ -266,6 +266,29 @@ def test_import_dockingrl_loads_no_torch_and_exports_the_public_api():
     assert out.stdout.split() == ["False", "True", "True"], out.stdout + out.stderr
 
 
+def test_the_command_line_help_loads_no_torch():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\nfrom dockingrl.cli import main\n"
+        "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+        "print('torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "False", out.stderr
+
+
+def test_the_torch_free_copies_of_the_filter_options_agree():
+    from dockingrl.cli.filter import RANGE_NOISE_FROM
+    from dockingrl.filter_learning.options import LEARN_R
+    from dockingrl.transforms import noise
+    from dockingrl.transforms.ekf import MEASUREMENT_DIM
+
+    assert RANGE_NOISE_FROM == noise.RANGE_NOISE_FROM
+    assert LEARN_R["all"] == tuple(range(MEASUREMENT_DIM))
+
+
 def test_no_code_branches_on_an_algorithm_name():
     """The training loop, the networks and the collection ask the agent (its class's
     ``make_actor``, ``learn_batch``, ``random_steps``), never compare a config's ``algo``."""

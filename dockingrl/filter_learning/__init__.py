@@ -29,23 +29,29 @@ objectives, :mod:`~dockingrl.filter_learning.fit` is the optimisation loop and
 :mod:`~dockingrl.filter_learning.consistency` scores a filter (RMSE, NEES, NIS).
 """
 
-from dockingrl.filter_learning.consistency import (
-    evaluate_filter,
-    filter_estimates,
-    normalized_errors,
-    run_averaged_nees_test,
-)
-from dockingrl.filter_learning.fit import LEARN_R, FilterFit, fit_filter
-from dockingrl.filter_learning.objectives import (
-    OBJECTIVES,
-    gaussian_nll,
-    innovation_whiteness,
-    masked_innovation,
-    run_filter,
-    state_error,
-    whiten,
-)
-from dockingrl.filter_learning.rollouts import behaviour_policy, mismatched_config, record_rollouts
+from typing import TYPE_CHECKING
+
+from dockingrl.imports import lazy_attributes
+
+_EXPORTS = {
+    "LEARN_R": "dockingrl.filter_learning.options",
+    "OBJECTIVES": "dockingrl.filter_learning.options",
+    "FilterFit": "dockingrl.filter_learning.options",
+    "behaviour_policy": "dockingrl.filter_learning.rollouts",
+    "evaluate_filter": "dockingrl.filter_learning.consistency",
+    "filter_estimates": "dockingrl.filter_learning.consistency",
+    "fit_filter": "dockingrl.filter_learning.fit",
+    "gaussian_nll": "dockingrl.filter_learning.objectives",
+    "innovation_whiteness": "dockingrl.filter_learning.objectives",
+    "masked_innovation": "dockingrl.filter_learning.objectives",
+    "mismatched_config": "dockingrl.filter_learning.rollouts",
+    "normalized_errors": "dockingrl.filter_learning.consistency",
+    "record_rollouts": "dockingrl.filter_learning.rollouts",
+    "run_averaged_nees_test": "dockingrl.filter_learning.consistency",
+    "run_filter": "dockingrl.filter_learning.objectives",
+    "state_error": "dockingrl.filter_learning.objectives",
+    "whiten": "dockingrl.filter_learning.objectives",
+}
 
 __all__ = [
     "LEARN_R",
@@ -66,3 +72,28 @@ __all__ = [
     "state_error",
     "whiten",
 ]
+
+if TYPE_CHECKING:
+    from dockingrl.filter_learning.consistency import (
+        evaluate_filter,
+        filter_estimates,
+        normalized_errors,
+        run_averaged_nees_test,
+    )
+    from dockingrl.filter_learning.fit import fit_filter
+    from dockingrl.filter_learning.objectives import (
+        gaussian_nll,
+        innovation_whiteness,
+        masked_innovation,
+        run_filter,
+        state_error,
+        whiten,
+    )
+    from dockingrl.filter_learning.options import LEARN_R, OBJECTIVES, FilterFit
+    from dockingrl.filter_learning.rollouts import (
+        behaviour_policy,
+        mismatched_config,
+        record_rollouts,
+    )
+
+__getattr__, __dir__ = lazy_attributes(__name__, _EXPORTS)

@@ -3,39 +3,16 @@ backpropagation through time over recorded rollouts (:func:`fit_filter`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from tensordict import TensorDict
 
 from dockingrl.env import DockingConfig
-from dockingrl.filter_learning.objectives import OBJECTIVES, run_filter
+from dockingrl.filter_learning.objectives import run_filter
+from dockingrl.filter_learning.options import LEARN_R, OBJECTIVES, FilterFit
 from dockingrl.filter_learning.rollouts import record_rollouts
 from dockingrl.transforms.ekf import MEASUREMENT_DIM
 from dockingrl.transforms.filtering import EKFTransform
 from dockingrl.transforms.noise import CONTEXT_FEATURES
-
-#: Which of ``R``'s six sigmas a fit learns; the others keep their values (Table 2 unless
-#: loaded): ``usbl`` learns the range and bearing sigmas only, the sensor whose noise depends on
-#: the acoustic conditions, and keeps the heading, DVL and IMU sigmas of their data sheets.
-LEARN_R = {"all": tuple(range(MEASUREMENT_DIM)), "usbl": (0, 1), "none": ()}
-
-
-@dataclass
-class FilterFit:
-    """Options of :func:`fit_filter`."""
-
-    objective: str = "nll"
-    num_envs: int = 128
-    steps: int = 600
-    window: int = 50
-    epochs: int = 4
-    lr: float = 0.03
-    behaviour: str = "managed_surge"
-    seed: int = 0
-    whiteness: float = 0.0  # nll only: weight of the innovations' whiteness penalty
-    lags: int = 5
-    learn_r: str = "all"  # which of R's sigmas are fitted (LEARN_R)
 
 
 def fit_filter(

@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDict
 
 from dockingrl.env.dynamics import wrap_angle
+from dockingrl.filter_learning.options import OBJECTIVES
 from dockingrl.transforms.ekf import (
     STATE_DIM,
     ekf_predict,
@@ -18,8 +19,6 @@ from dockingrl.transforms.ekf import (
     measurement_jacobian,
 )
 from dockingrl.transforms.filtering import EKFTransform, arrived_readings
-
-OBJECTIVES = ("nll", "supervised", "mse")
 
 
 def whiten(residual: torch.Tensor, cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
