@@ -47,25 +47,36 @@ KEYS = (
 )
 
 
-def pipeline_options(config: Mapping) -> dict:
-    """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (as a
-    dict, e.g. a saved policy's ``config``) fixes for whatever runs its policy:
-    ``observe_current``, ``observe_command``, ``observe_filter_std``, ``action_repeat`` and the
-    filter's ``compensate_latency``, ``estimate_current`` and ``filter_gate`` (as
-    ``ekf_kwargs``), where they differ from the paper's. Training,
-    ``dockingrl eval --policy``, ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take
-    them from here."""
+def saved_config(config):
+    """The typed config of a training config saved as a dict (a run's ``config.json``, a
+    policy file's ``config``), type-checked; a config passes through."""
+    from dockingrl.agents.config import TrainConfig, config_class, saved_fields
+
+    if isinstance(config, TrainConfig):
+        return config
+    return config_class(config["algo"])(**saved_fields(config["algo"], config))
+
+
+def pipeline_options(config) -> dict:
+    """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (a
+    config, or one saved as a dict: a saved policy's ``config``, :func:`saved_config`) fixes
+    for whatever runs its policy: ``observe_current``, ``observe_command``,
+    ``observe_filter_std``, ``action_repeat`` and the filter's ``compensate_latency``,
+    ``estimate_current`` and ``filter_gate`` (as ``ekf_kwargs``), where they differ from the
+    paper's. Training, ``dockingrl eval --policy``, ``dockingrl stress`` and
+    ``OnboardPolicy.from_file`` all take them from here."""
+    cfg = saved_config(config)
     options: dict = {}
-    ekf_kwargs = {k: True for k in ("compensate_latency", "estimate_current") if config.get(k)}
-    if config.get("filter_gate"):
-        ekf_kwargs["gate"] = float(config["filter_gate"])
+    ekf_kwargs = {k: True for k in ("compensate_latency", "estimate_current") if getattr(cfg, k)}
+    if cfg.filter_gate:
+        ekf_kwargs["gate"] = float(cfg.filter_gate)
     if ekf_kwargs:
         options["ekf_kwargs"] = ekf_kwargs
     for name in OBSERVATION_OPTIONS:
-        if config.get(name):
+        if getattr(cfg, name):
             options[name] = True
-    if config.get("action_repeat", 1) != 1:
-        options["action_repeat"] = config["action_repeat"]
+    if cfg.action_repeat != 1:
+        options["action_repeat"] = cfg.action_repeat
     return options
 
 

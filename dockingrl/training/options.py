@@ -32,7 +32,7 @@ def env_kwargs(cfg: TrainConfig, level: str | None = None) -> dict:
     kwargs: dict = {"config": level_config(level or cfg.train_level, config)}
     if cfg.filter_params:
         kwargs["filter_params"] = read_filter_params(cfg.filter_params)
-    kwargs.update(pipeline_options(cfg.to_dict()))
+    kwargs.update(pipeline_options(cfg))
     return kwargs
 
 
