@@ -51,10 +51,10 @@ def evaluation_world(
     and the learned filter the policy was trained with (``info`` of the saved policy), unless
     given (``filter_params="none"``: Table 1's filter); and a line saying what was taken from
     the policy. ``vehicle``: the vehicle flown (:attr:`DockingConfig.vehicle`)."""
-    from dockingrl.agents.saving import training_filter
+    from dockingrl.agents.saving import saved_config, training_filter
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
-    trained = info.get("config", {})
+    trained = saved_config(info["config"]) if info else None
     taken = []
     scales = []
     for name, value in (
@@ -62,7 +62,7 @@ def evaluation_world(
         ("bearing_noise_scale", bearing_noise_scale),
     ):
         if value is None:
-            value = float(trained.get(name, 1.0))
+            value = float(getattr(trained, name)) if trained is not None else 1.0
             if value != 1.0:
                 taken.append(f"{name} {value:g}")
         scales.append(value)
@@ -73,7 +73,7 @@ def evaluation_world(
     if params is None and scenario in FILTERED_OBSERVATION_KEYS and info:
         params = training_filter(info)
         if params is not None:
-            taken.append(f"filter_params {trained.get('filter_params')}")
+            taken.append(f"filter_params {trained.filter_params}")
     if params == "none":
         params = None
     elif isinstance(params, str) and not Path(params).is_file():

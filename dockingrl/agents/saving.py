@@ -354,4 +354,4 @@ def upgrade_policy(path: str | Path) -> str:
 def training_filter(info: Mapping):
     """The learned filter a loaded policy (``info`` of :func:`load_policy`) was trained with:
     the payload it carries, else the file its config names, else ``None`` (Table 1's)."""
-    return info.get("filter_params") or info["config"].get("filter_params") or None
+    return info.get("filter_params") or saved_config(info["config"]).filter_params or None
