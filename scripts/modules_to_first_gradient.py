@@ -32,7 +32,7 @@ def main(argv: list[str]) -> None:
     def stop(self, *args, **kwargs):
         raise FirstStep
 
-    torch.optim.Adam.step = stop
+    step, torch.optim.Adam.step = torch.optim.Adam.step, stop
     with tempfile.TemporaryDirectory() as out:
         sys.setprofile(profile)
         threading.setprofile(profile)
@@ -42,6 +42,8 @@ def main(argv: list[str]) -> None:
             pass
         finally:
             sys.setprofile(None)
+            threading.setprofile(None)
+            torch.optim.Adam.step = step
     for name in seen:
         print(name)
     print(f"{len(seen)} modules")

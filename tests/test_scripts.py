@@ -260,3 +260,16 @@ def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(tmp_p
     (out / "realistic" / done[0]).write_text(json.dumps({**trial, "recipe": "kept"}))
     assert script.main(["--runs", str(runs), "--out", str(out)]) == 0
     assert json.loads((out / "realistic" / done[0]).read_text())["recipe"] == "kept"
+
+
+def test_modules_to_first_gradient_lists_the_modules_a_training_run_enters(capsys):
+    script = load_script("modules_to_first_gradient.py")
+    script.main(["train", "--recipe", "ppo", "--threads", "1", "--num-envs", "8"])
+    lines = capsys.readouterr().out.splitlines()
+    modules, count = lines[:-1], lines[-1]
+    assert count == f"{len(modules)} modules"
+    assert {"dockingrl.cli.train", "dockingrl.agents.ppo", "dockingrl.env.docking"} <= set(modules)
+    assert len(set(modules)) == len(modules)
+    import torch
+
+    assert torch.optim.Adam.step.__name__ == "step"  # the optimiser is put back
