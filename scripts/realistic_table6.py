@@ -84,7 +84,10 @@ def evaluate_trial(run: Path, threads: int) -> dict:
 
 def table(trials: list[dict]) -> dict:
     """Per level, the cells (recipe, scenario): success per seed, the mean with its Student-t
-    interval over seeds, failures summed over seeds, the nominal mean beside it."""
+    interval over seeds and Wilson's over all the cell's episodes, failures summed over seeds,
+    the nominal mean beside it."""
+    from scipy.stats import binomtest
+
     from dockingrl.evaluation.protocol import seeds_label
     from dockingrl.table.claims import seed_ci
 
@@ -117,6 +120,9 @@ def table(trials: list[dict]) -> dict:
             c["seeds_label"] = seeds_label(c["seeds"])
             c["success_mean"] = sum(values) / len(values)
             c["success_ci95_over_seeds"] = seed_ci(values)
+            docked = round(sum(v * LEVELS[level] / 100 for v in values))
+            wilson = binomtest(docked, c["episodes"]).proportion_ci(method="wilson")
+            c["success_ci95_over_episodes"] = [100 * wilson.low, 100 * wilson.high]
             c["nominal_mean"] = sum(c["nominal"]) / len(c["nominal"])
         out[level] = list(cells.values())
     return out
@@ -136,9 +142,9 @@ def markdown(tables: dict, command: str) -> str:
         lines += [
             f"## {level}",
             "",
-            "| recipe | scenario | seeds | success % (per seed) | 95 % CI over seeds | nominal % "
-            "| failures: timeout / missed funnel / too fast |",
-            "|---|---|---|---|---|---|---|",
+            "| recipe | scenario | seeds | success % (per seed) | 95 % CI over seeds "
+            "| 95 % CI over episodes | nominal % | failures: timeout / missed funnel / too fast |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for c in cells:
             ci = c["success_ci95_over_seeds"]
@@ -148,6 +154,7 @@ def markdown(tables: dict, command: str) -> str:
                 f"| {c['recipe']} | {c['scenario']} | {c['seeds_label']} | "
                 f"{c['success_mean']:.1f} ({per_seed}) | "
                 + ("-" if ci is None else f"[{ci[0]:.1f}, {ci[1]:.1f}]")
+                + " | [{:.1f}, {:.1f}]".format(*c["success_ci95_over_episodes"])
                 + f" | {c['nominal_mean']:.1f} | {f.get('timeout', 0)} / "
                 f"{f.get('missed_funnel', 0)} / {f.get('too_fast', 0)} |"
             )

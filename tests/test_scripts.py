@@ -251,6 +251,8 @@ def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(tmp_p
     tables = json.loads((out / "realistic.json").read_text())
     (cell,) = tables["F0"]
     assert cell["seeds"] == [100, 101] and cell["episodes"] == 8
+    low, high = cell["success_ci95_over_episodes"]
+    assert 0 <= low <= cell["success_mean"] <= high <= 100
     assert (
         sum(cell["failures"].values()) + sum(round(s * 4 / 100) for s in cell["success_per_seed"])
         == 8
