@@ -16,7 +16,7 @@ class FirstStep(Exception):
     """Raised by the first optimiser step."""
 
 
-def main(argv: list[str]) -> None:
+def main(argv: list[str]) -> int:
     import torch
 
     from dockingrl.cli import main as cli
@@ -29,7 +29,11 @@ def main(argv: list[str]) -> None:
             if name.startswith("dockingrl") and name not in seen:
                 seen[name] = None
 
+    reached = []
+
     def stop(self, *args, **kwargs):
+        sys.setprofile(None)  # what handles the stop is not on the way to it
+        reached.append(True)  # the command line turns the exception into its exit
         raise FirstStep
 
     step, torch.optim.Adam.step = torch.optim.Adam.step, stop
@@ -44,10 +48,14 @@ def main(argv: list[str]) -> None:
             sys.setprofile(None)
             threading.setprofile(None)
             torch.optim.Adam.step = step
+    if not reached:
+        print("the command ended before its first gradient step", file=sys.stderr)
+        return 1
     for name in seen:
         print(name)
     print(f"{len(seen)} modules")
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["train", "--recipe", "ppo", "--threads", "1"])
+    sys.exit(main(sys.argv[1:] or ["train", "--recipe", "ppo", "--threads", "1"]))

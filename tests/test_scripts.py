@@ -266,7 +266,10 @@ def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(tmp_p
 
 def test_modules_to_first_gradient_lists_the_modules_a_training_run_enters(capsys):
     script = load_script("modules_to_first_gradient.py")
-    script.main(["train", "--recipe", "ppo", "--threads", "1", "--num-envs", "8"])
+    argv = ["train", "--recipe", "ppo", "--threads", "1", "--num-envs", "8"]
+    assert script.main(argv) == 1  # 8 envs of 64 steps are fewer than a minibatch: refused
+    assert "before its first gradient step" in capsys.readouterr().err
+    assert script.main([*argv, "--minibatch-size", "256"]) == 0
     lines = capsys.readouterr().out.splitlines()
     modules, count = lines[:-1], lines[-1]
     assert count == f"{len(modules)} modules"
