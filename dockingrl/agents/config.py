@@ -250,8 +250,8 @@ def option_names(algo: str) -> frozenset[str]:
 
 
 def unknown_options(algo: str, names) -> list[str]:
-    """The names among ``names`` that are no option of ``algo``'s config, sorted: the one
-    check of unknown fields, which every caller words for its input."""
+    """The names among ``names`` that are no option of ``algo``'s config (:func:`option_names`,
+    the one list of them), sorted."""
     return sorted(set(names) - option_names(algo))
 
 
@@ -272,9 +272,9 @@ def check_types(algo: str, values: dict[str, Any]) -> None:
     """Refuse (``ValueError``, one line) a field of ``algo``'s config that is unknown or whose
     value has the wrong type: booleans for bool fields, integers for int fields, numbers for
     float fields, strings for str fields, a list of integers for ``hidden``."""
-    hints = get_type_hints(config_class(algo))
+    hints, known = get_type_hints(config_class(algo)), option_names(algo)
     for name, value in values.items():
-        if unknown_options(algo, [name]):
+        if name not in known:
             raise ValueError(f"unknown {algo} option {name!r}")
         kind = hints[name]
         if kind is bool:
@@ -305,12 +305,12 @@ def parse_overrides(algo: str, items: Sequence[str]) -> dict[str, Any]:
     """``FIELD=VALUE`` strings to typed overrides of ``algo``'s config (``true``/``false``
     for booleans, comma-separated integers for ``hidden``); raises ``ValueError`` on an
     unknown field or a value of the wrong type."""
-    hints = get_type_hints(config_class(algo))
+    hints, known = get_type_hints(config_class(algo)), option_names(algo)
     booleans = {"true": True, "1": True, "false": False, "0": False}
     overrides: dict[str, Any] = {}
     for item in items:
         name, sep, value = item.partition("=")
-        if not sep or unknown_options(algo, [name]):
+        if not sep or name not in known:
             raise ValueError(f"{item!r}: not FIELD=VALUE with a field of the {algo} config")
         kind = hints[name]
         try:
@@ -367,11 +367,11 @@ CONFIG_FIELDS = frozenset(f.name for cls in CONFIGS.values() for f in fields(cls
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The config fields given on the command line (``--FIELD VALUE``) for ``args.algo``;
     ``ValueError`` for a field that does not apply to that algorithm."""
-    overrides = {}
+    overrides, known = {}, option_names(args.algo)
     for name, value in vars(args).items():
         if value is None or name not in CONFIG_FIELDS:
             continue
-        if unknown_options(args.algo, [name]):
+        if name not in known:
             raise ValueError(f"--{name.replace('_', '-')} does not apply to {args.algo}")
         overrides[name] = tuple(value) if isinstance(value, list) else value
     return overrides
