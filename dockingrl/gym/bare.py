@@ -76,6 +76,21 @@ def action_space(config: DockingConfig) -> spaces.Box:
     )
 
 
+def real_array(value, shape: tuple, must: str, ragged: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape``: real numbers (integers or floats, not
+    booleans, complex or text), else a one-line ``ValueError`` that starts with ``must`` (what
+    the value must be; ``ragged`` names a value of uneven rows)."""
+    try:
+        array = np.asarray(value)
+    except ValueError:
+        raise ValueError(f"{must}, got a ragged {ragged}") from None
+    if array.dtype.kind not in "iuf":
+        raise ValueError(f"{must}, got dtype {array.dtype} of shape {array.shape}")
+    if array.shape != shape:
+        raise ValueError(f"{must}, got shape {array.shape}")
+    return array.astype(np.float64)
+
+
 def validated_action(action, config: DockingConfig) -> np.ndarray:
     """``action`` as the float32 ``(2,)`` command the env applies: real numbers of shape ``(2,)``
     exactly (an array, list or tuple), finite, clipped to the bounds in float64 so that a finite
@@ -84,17 +99,8 @@ def validated_action(action, config: DockingConfig) -> np.ndarray:
     expected = f"a finite real action of shape ({ACTION_DIM},) [v_d, w_d]"
     if action is None:
         raise ValueError(f"action must be {expected}, got None")
-    try:
-        array = np.asarray(action)
-    except ValueError:
-        raise ValueError(f"action must be {expected}, got a ragged {action!r}") from None
-    if array.dtype.kind not in "iuf":
-        raise ValueError(
-            f"action must be {expected}, got dtype {array.dtype} of shape {array.shape}"
-        )
-    if array.shape != (ACTION_DIM,):
-        raise ValueError(f"action must be {expected}, got shape {array.shape}")
-    values = array.astype(np.float64).tolist()
+    values = real_array(action, (ACTION_DIM,), f"action must be {expected}", repr(action))
+    values = values.tolist()
     if not all(map(math.isfinite, values)):
         raise ValueError(f"action must be {expected}, got {values}")
     clipped = map(min, map(max, values, config.action_low), config.action_high)

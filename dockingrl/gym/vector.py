@@ -14,7 +14,7 @@ from gymnasium.vector.utils import batch_space
 from torchrl.envs.utils import step_mdp
 
 from dockingrl.env.specs import ACTION_DIM
-from dockingrl.gym.bare import action_space
+from dockingrl.gym.bare import action_space, real_array
 from dockingrl.gym.single import gym_pipeline, observation_space
 from dockingrl.scenarios import layout_options, observation_layout
 
@@ -113,17 +113,8 @@ class DockingVectorEnv(VectorEnv):
 
     def _actions(self, actions) -> torch.Tensor:
         expected = f"a finite real array of shape ({self.num_envs}, {ACTION_DIM}) [v_d, w_d]"
-        try:
-            array = np.asarray(actions)
-        except ValueError:
-            raise ValueError(f"actions must be {expected}, got a ragged sequence") from None
-        if array.dtype.kind not in "iuf":
-            raise ValueError(
-                f"actions must be {expected}, got dtype {array.dtype} of shape {array.shape}"
-            )
-        if array.shape != (self.num_envs, ACTION_DIM):
-            raise ValueError(f"actions must be {expected}, got shape {array.shape}")
-        array = array.astype(np.float64)
+        shape = (self.num_envs, ACTION_DIM)
+        array = real_array(actions, shape, f"actions must be {expected}", "sequence")
         finite = np.isfinite(array).all(-1)
         if not finite.all():
             index = int(np.flatnonzero(~finite)[0])
