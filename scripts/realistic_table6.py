@@ -86,10 +86,8 @@ def table(trials: list[dict]) -> dict:
     """Per level, the cells (recipe, scenario): success per seed, the mean with its Student-t
     interval over seeds and Wilson's over all the cell's episodes, failures summed over seeds,
     the nominal mean beside it."""
-    from scipy.stats import binomtest
-
     from dockingrl.evaluation.protocol import seeds_label
-    from dockingrl.table.claims import seed_ci
+    from dockingrl.table.claims import episodes_ci, seed_ci
 
     out: dict = {}
     for level in LEVELS:
@@ -120,9 +118,8 @@ def table(trials: list[dict]) -> dict:
             c["seeds_label"] = seeds_label(c["seeds"])
             c["success_mean"] = sum(values) / len(values)
             c["success_ci95_over_seeds"] = seed_ci(values)
-            docked = round(sum(v * LEVELS[level] / 100 for v in values))
-            wilson = binomtest(docked, c["episodes"]).proportion_ci(method="wilson")
-            c["success_ci95_over_episodes"] = [100 * wilson.low, 100 * wilson.high]
+            per_seed = [LEVELS[level]] * len(values)
+            c["success_ci95_over_episodes"] = episodes_ci(values, per_seed)
             c["nominal_mean"] = sum(c["nominal"]) / len(c["nominal"])
         out[level] = list(cells.values())
     return out

@@ -22,6 +22,7 @@ from dockingrl.io import atomic_write, write_json
 from dockingrl.table.checks import field_problem
 from dockingrl.table.claims import (
     claims,
+    episodes_ci,
     faster_than_baseline,
     read_baseline,
     seed_ci,
@@ -178,8 +179,6 @@ def cell(runs: list[dict]) -> dict:
     """One cell of the table from its seeds' runs (every per-seed list in the order of
     ``seeds``). Raises ``ValueError`` for a seed given twice or runs of different configs
     (budgets, or any other field but the seed)."""
-    from scipy.stats import binomtest
-
     runs = sorted(runs, key=lambda r: r["config"]["seed"])
     name = f"{runs[0]['config'].get('recipe') or runs[0]['config']['algo']} "
     name += runs[0]["config"]["scenario"]
@@ -199,8 +198,6 @@ def cell(runs: list[dict]) -> dict:
         )
     success = [r["eval"]["success_rate"] for r in runs]
     episodes = [r["eval"]["episodes"] for r in runs]
-    docked = round(sum(s * n / 100 for s, n in zip(success, episodes, strict=True)))
-    wilson = binomtest(docked, sum(episodes)).proportion_ci(method="wilson")
     early = [_at(r["curves"].get("eval/success_rate", []), EARLY_STEPS) for r in runs]
     early = [e for e in early if e is not None]
     algo = runs[0]["config"]["algo"]
@@ -216,7 +213,7 @@ def cell(runs: list[dict]) -> dict:
         "success_mean": float(np.mean(success)),
         "success_ci95_over_seeds": seed_ci(success),
         "success_iqm": iqm(scores_matrix([success])) if len(success) > 1 else None,
-        "success_ci95_over_episodes": [100 * wilson.low, 100 * wilson.high],
+        "success_ci95_over_episodes": episodes_ci(success, episodes),
         "episodes": sum(episodes),
         "time_docked_s": _pooled([r["eval"]["time_s"] for r in runs]),
         "time_success_s": _pooled([r["eval"].get("time_success_s") or {} for r in runs]),

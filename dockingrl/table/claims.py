@@ -27,6 +27,18 @@ from dockingrl.table.reliable import compare, improvement_verdict
 LEVEL = 0.95
 
 
+def episodes_ci(success_per_seed, episodes_per_seed) -> list[float]:
+    """95 % Wilson interval (%) of the success rate over all the episodes of the seeds'
+    evaluations (``success_per_seed`` in %, over ``episodes_per_seed`` episodes each),
+    :meth:`scipy.stats.binomtest.proportion_ci`."""
+    from scipy.stats import binomtest
+
+    pairs = zip(success_per_seed, episodes_per_seed, strict=True)
+    docked = round(sum(s * n / 100 for s, n in pairs))
+    wilson = binomtest(docked, sum(episodes_per_seed)).proportion_ci(method="wilson")
+    return [100 * wilson.low, 100 * wilson.high]
+
+
 def seed_ci(values, low: float = 0.0, high: float = 100.0) -> list[float] | None:
     """95 % Student-t interval of the mean of ``values`` (one per seed; :mod:`scipy.stats.t`),
     clipped to [``low``, ``high``]. None for fewer than two values or values that all agree:
