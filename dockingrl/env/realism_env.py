@@ -23,7 +23,7 @@ from dockingrl.env.realism import (
     vehicle_parameters,
 )
 from dockingrl.env.specs import OBSERVATION_DIM
-from dockingrl.env.step import paper_motion, step_entries
+from dockingrl.env.step import batch_motion, step_entries
 
 
 class RealismMixin:
@@ -215,7 +215,7 @@ class RealismMixin:
         )
         if cfg.vehicle == "mixed":
             gains = (self._kp, self._ki, self._kd, self._inertia)
-            paper = paper_motion(
+            paper = batch_motion(
                 cfg,
                 gains,
                 self._pose,

@@ -8,55 +8,57 @@ from __future__ import annotations
 import torch
 
 from dockingrl.env.config import DockingConfig
-from dockingrl.env.dynamics import pid_thrust, pose_update, velocity_update
 from dockingrl.env.realism import limit_thrust
-from dockingrl.env.transition import step_outcome
+from dockingrl.env.transition import SimulatorState, paper_motion, step_outcome
 
 
-def paper_motion(
+def batch_motion(
     config: DockingConfig, gains, pose, velocity, current, integral, previous_error, action, vehicle
 ):
-    """The paper's vehicle moved one step: the PID (Sec. 4.1, or the episode's vehicle of the
-    realism options), eqs. 36-38. ``gains`` ``(kp, ki, kd, inertia)`` the nominal vehicle's,
-    used unless ``vehicle`` (:func:`~dockingrl.env.realism.vehicle_parameters`) is given.
+    """The paper's vehicle of a batch moved one step (:func:`~dockingrl.env.transition.paper_motion`
+    on the batch's columns): ``gains`` ``(kp, ki, kd, inertia)`` the nominal vehicle's, used
+    unless ``vehicle`` (:func:`~dockingrl.env.realism.vehicle_parameters`) is given, whose
+    thrust the realism options limit further (:func:`~dockingrl.env.realism.limit_thrust`).
 
     Returns:
         ``(pose, velocity, integral, error, tau)``, ``tau`` the PID's ``(surge, yaw)`` thrust.
     """
     cfg = config
-    kp, ki, kd, inertia = gains
-    error = action - velocity[:, 0::2]
-    if vehicle is None:
-        tau, integral = pid_thrust(
-            error, integral, previous_error, kp, ki, kd, cfg.dt, cfg.max_thrust
-        )
-        masses, damping = inertia, (cfg.linear_damping, cfg.quadratic_damping)
-    else:
-        thrust = vehicle["max_thrust"]
-        tau, integral = pid_thrust(
-            error,
-            integral,
-            previous_error,
-            vehicle["kp"],
-            vehicle["ki"],
-            vehicle["kd"],
-            cfg.dt,
-            thrust,
-        )
-        tau = limit_thrust(tau, thrust, cfg.reverse_thrust_loss, cfg.turning_surge_loss)
-        masses, damping = vehicle["inertia"], (vehicle["linear"], vehicle["quadratic"])
-    tau3 = torch.stack((tau[:, 0], torch.zeros_like(tau[:, 0]), tau[:, 1]), dim=-1)
-    velocity = velocity_update(
-        velocity,
-        tau3,
-        masses,
-        *damping,
-        cfg.max_acceleration,
-        cfg.max_velocity,
-        cfg.dt,
+    state = SimulatorState(
+        *pose.unbind(-1),
+        *velocity.unbind(-1),
+        *current.unbind(-1),
+        *integral.unbind(-1),
+        *previous_error.unbind(-1),
+        None,
     )
-    pose = pose_update(pose, velocity, current, cfg.dt)
-    return pose, velocity, integral, error, tau
+    if vehicle is None:
+        kp, ki, kd, inertia = gains
+        thrust = damping = thrust_limit = None
+    else:
+        kp, ki, kd, inertia = (vehicle[k] for k in ("kp", "ki", "kd", "inertia"))
+        limit = vehicle["max_thrust"]
+        thrust = limit.squeeze(-1)
+        damping = (vehicle["linear"].squeeze(-1), vehicle["quadratic"].squeeze(-1))
+
+        def thrust_limit(tau_u, tau_r):
+            tau = torch.stack((tau_u, tau_r), dim=-1)
+            return limit_thrust(tau, limit, cfg.reverse_thrust_loss, cfg.turning_surge_loss).unbind(
+                -1
+            )
+
+    columns = tuple(tuple(g.unbind(-1)) for g in (kp, ki, kd, inertia))
+    moved, tau = paper_motion(
+        cfg, columns, state, tuple(action.unbind(-1)), thrust, damping, thrust_limit
+    )
+    m = moved
+    return (
+        torch.stack((m.x, m.y, m.alpha), dim=-1),
+        torch.stack((m.u, m.v, m.r), dim=-1),
+        torch.stack((m.integral_u, m.integral_r), dim=-1),
+        torch.stack((m.error_u, m.error_r), dim=-1),
+        torch.stack(tau, dim=-1),
+    )
 
 
 def step_entries(
@@ -122,7 +124,7 @@ def make_transition(
         noise,
         vehicle=None,
     ):
-        pose, velocity, integral, error, tau = paper_motion(
+        pose, velocity, integral, error, tau = batch_motion(
             cfg, gains, pose, velocity, current, integral, previous_error, action, vehicle
         )
         step_count, out = step_entries(

@@ -92,6 +92,69 @@ def step_outcome(
     return Outcome(observation, reward, contact, success, score, contact_speed)
 
 
+def paper_motion(
+    config: DockingConfig,
+    gains: tuple,
+    state: SimulatorState,
+    action: tuple,
+    max_thrust=None,
+    damping: tuple | None = None,
+    thrust_limit=None,
+) -> tuple[SimulatorState, tuple]:
+    """The paper's vehicle moved one step: the PID of Sec. 4.1, then eqs. 36-38, on the state's
+    entries (a batch's tensors or one env's floats).
+
+    Args:
+        config: the task's constants.
+        gains: ``((kp_u, kp_r), (ki_u, ki_r), (kd_u, kd_r), (m_u, m_v, m_r))``, the PID gains
+            and the inertia per axis.
+        state: the :class:`SimulatorState` before the step.
+        action: ``(v_d, w_d)``, already clipped to the bounds of eq. 3.
+        max_thrust: the PID's limit (default ``config.max_thrust``).
+        damping: ``(linear, quadratic)`` of eq. 36 (default the config's).
+        thrust_limit: ``(tau_u, tau_r) -> (tau_u, tau_r)`` applied after the PID's clip (the
+            realism options' :func:`~dockingrl.env.realism.limit_thrust`), or ``None``.
+
+    Returns:
+        ``(state, (tau_u, tau_r))``: the moved state (the step count as it was) and the thrusts.
+    """
+    cfg = config
+    xp = ops(state.x)
+    (kp_u, kp_r), (ki_u, ki_r), (kd_u, kd_r), (m_u, m_v, m_r) = gains
+    max_thrust = cfg.max_thrust if max_thrust is None else max_thrust
+    linear, quadratic = (cfg.linear_damping, cfg.quadratic_damping) if damping is None else damping
+    v_d, w_d = action
+    error_u, error_r = v_d - state.u, w_d - state.r
+    tau_u, integral_u = pid_thrust(
+        error_u, state.integral_u, state.error_u, kp_u, ki_u, kd_u, cfg.dt, max_thrust
+    )
+    tau_r, integral_r = pid_thrust(
+        error_r, state.integral_r, state.error_r, kp_r, ki_r, kd_r, cfg.dt, max_thrust
+    )
+    if thrust_limit is not None:
+        tau_u, tau_r = thrust_limit(tau_u, tau_r)
+    limits = (linear, quadratic, cfg.max_acceleration, cfg.max_velocity)
+    u = velocity_update(state.u, tau_u, m_u, *limits, cfg.dt)
+    v = velocity_update(state.v, xp.zeros_like(tau_u), m_v, *limits, cfg.dt)
+    r = velocity_update(state.r, tau_r, m_r, *limits, cfg.dt)
+    current = xp.stack((state.oc_x, state.oc_y), dim=-1)
+    pose = xp.stack((state.x, state.y, state.alpha), dim=-1)
+    x, y, alpha = xp.unbind(pose_update(pose, xp.stack((u, v, r), dim=-1), current, cfg.dt), -1)
+    moved = state._replace(
+        x=x,
+        y=y,
+        alpha=alpha,
+        u=u,
+        v=v,
+        r=r,
+        integral_u=integral_u,
+        integral_r=integral_r,
+        error_u=error_u,
+        error_r=error_r,
+    )
+    return moved, (tau_u, tau_r)
+
+
 def paper_step(
     config: DockingConfig,
     gains: tuple,
@@ -101,13 +164,12 @@ def paper_step(
     noise=None,
     noise_std=None,
 ) -> tuple[SimulatorState, StepOutput]:
-    """One step of the paper's task: PID (Sec. 4.1), eqs. 36-38, the observation of eq. 2,
-    the reward of eq. 12 and the episode's end (Sec. 4.1).
+    """One step of the paper's task: the vehicle's motion (:func:`paper_motion`), the
+    observation of eq. 2, the reward of eq. 12 and the episode's end (Sec. 4.1).
 
     Args:
         config: the task's constants.
-        gains: ``((kp_u, kp_r), (ki_u, ki_r), (kd_u, kd_r), (m_u, m_v, m_r))``, the PID gains
-            and the inertia per axis.
+        gains: as :func:`paper_motion`'s.
         state: the :class:`SimulatorState` before the step.
         action: ``(v_d, w_d)``, already clipped to the bounds of eq. 3.
         reward: eq. 12 as ``reward(rho, tau, speed, score)``, ``tau`` stacked ``(surge, yaw)``:
@@ -120,54 +182,25 @@ def paper_step(
     """
     cfg = config
     xp = ops(state.x)
-    (kp_u, kp_r), (ki_u, ki_r), (kd_u, kd_r), (m_u, m_v, m_r) = gains
-    v_d, w_d = action
-    error_u, error_r = v_d - state.u, w_d - state.r
-    tau_u, integral_u = pid_thrust(
-        error_u, state.integral_u, state.error_u, kp_u, ki_u, kd_u, cfg.dt, cfg.max_thrust
-    )
-    tau_r, integral_r = pid_thrust(
-        error_r, state.integral_r, state.error_r, kp_r, ki_r, kd_r, cfg.dt, cfg.max_thrust
-    )
-    limits = (cfg.linear_damping, cfg.quadratic_damping, cfg.max_acceleration, cfg.max_velocity)
-    u = velocity_update(state.u, tau_u, m_u, *limits, cfg.dt)
-    v = velocity_update(state.v, xp.zeros_like(tau_u), m_v, *limits, cfg.dt)
-    r = velocity_update(state.r, tau_r, m_r, *limits, cfg.dt)
-    current = xp.stack((state.oc_x, state.oc_y), dim=-1)
-    pose = xp.stack((state.x, state.y, state.alpha), dim=-1)
-    x, y, alpha = xp.unbind(pose_update(pose, xp.stack((u, v, r), dim=-1), current, cfg.dt), -1)
+    moved, tau = paper_motion(cfg, gains, state, action)
     step_count = state.step_count + 1
-
+    current = xp.stack((state.oc_x, state.oc_y), dim=-1)
+    m = moved
     end = step_outcome(
         cfg,
-        x,
-        y,
-        alpha,
-        u,
-        v,
-        r,
+        m.x,
+        m.y,
+        m.alpha,
+        m.u,
+        m.v,
+        m.r,
         current,
-        xp.stack((tau_u, tau_r), dim=-1),
+        xp.stack(tau, dim=-1),
         reward,
         noise,
         noise_std,
     )
     truncated = (step_count >= cfg.max_steps) & xp.logical_not(end.contact)
-    next_state = SimulatorState(
-        x,
-        y,
-        alpha,
-        u,
-        v,
-        r,
-        state.oc_x,
-        state.oc_y,
-        integral_u,
-        integral_r,
-        error_u,
-        error_r,
-        step_count,
-    )
     output = StepOutput(
         end.observation,
         end.reward,
@@ -177,4 +210,4 @@ def paper_step(
         end.contact_score,
         end.contact_speed,
     )
-    return next_state, output
+    return moved._replace(step_count=step_count), output
