@@ -15,6 +15,16 @@ def documented(text: str, **kwargs) -> Any:
     return field(metadata={"doc": text}, **kwargs)
 
 
+def env_field(name: str) -> Any:
+    """A training config's field that is the env's :class:`~dockingrl.env.DockingConfig` field
+    ``name`` (a :func:`~dockingrl.env.task_options.training_draw`): its default and ``--help``
+    text are the env's, declared there once."""
+    from dockingrl.env.task_options import TaskOptions
+
+    declared = TaskOptions.__dataclass_fields__[name]
+    return field(default=declared.default, metadata=declared.metadata)
+
+
 def lr_schedule_field() -> Any:
     """The ``lr_schedule`` field every algorithm has."""
     return documented(

@@ -7,9 +7,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from dockingrl.agents.option_fields import check_ranges, documented, refuse
+from dockingrl.agents.option_fields import check_ranges, documented, env_field, refuse
 from dockingrl.env.config import noise_scale_problem
 from dockingrl.env.levels import LEVELS
+from dockingrl.env.task_options import TRAINING_DRAWS
 
 
 def curriculum_levels(curriculum: str) -> list[str]:
@@ -31,22 +32,9 @@ class WorldOptions:
     filter_params: str = documented(
         "learned Q/R file for the EKF (dockingrl learn-filter)", default=""
     )
-    following_current_fraction: float = documented(
-        "training envs: probability that a reset draws oc_x from [0, 0.3] only (following "
-        "currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
-        default=0.0,
-    )
-    lateral_current_fraction: float = documented(
-        "training envs: probability that a reset draws |oc_y| from [0.15, 0.3] only (strong "
-        "lateral currents); evaluation keeps the uniform draw (0: Sec. 4.1; not in the paper)",
-        default=0.0,
-    )
-    near_start_fraction: float = documented(
-        "training envs: probability that a reset starts 3-8 m before the station (|y| <= 3 m) "
-        "instead of 25-30 m, to practise the final approach; evaluation keeps Sec. 4.1's starts "
-        "(0: off; not in the paper)",
-        default=0.0,
-    )
+    following_current_fraction: float = env_field("following_current_fraction")
+    lateral_current_fraction: float = env_field("lateral_current_fraction")
+    near_start_fraction: float = env_field("near_start_fraction")
     train_level: str = documented(
         "stress-ladder level (L0-L5, docs/realism.md) whose realism options the run's world "
         "takes: its training env (after train_curriculum's stages) and all its evaluations "
@@ -118,11 +106,7 @@ class WorldOptions:
         check_ranges(
             self,
             counts=("action_repeat",),
-            fraction=(
-                "following_current_fraction",
-                "lateral_current_fraction",
-                "near_start_fraction",
-            ),
+            fraction=TRAINING_DRAWS,
             flags=("compensate_latency", "estimate_current", "observe_filter_std"),
         )
         for name, sigma in (

@@ -11,8 +11,10 @@ measures that choice.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from dockingrl.env.bounds import Bound
 
@@ -85,6 +87,14 @@ TASK_BOUNDS: dict[str, Bound] = {
 }
 
 
+def training_draw(doc: str) -> Any:
+    """A field of :class:`TaskOptions` that biases the training envs' resets (a curriculum,
+    not in the paper; 0 is Sec. 4.1's draw, which evaluation keeps): a probability, with its
+    ``--help`` text ``doc``. The training config takes these fields as they are
+    (:func:`~dockingrl.agents.option_fields.env_field`)."""
+    return field(default=0.0, metadata={"doc": doc, "training_draw": True})
+
+
 @dataclass(frozen=True)
 class TaskOptions:
     """The task's fields of :class:`~dockingrl.env.DockingConfig` (which validates them)."""
@@ -120,18 +130,21 @@ class TaskOptions:
     init_y: tuple[float, float] = (-7.5, 7.5)  # m
     init_heading: tuple[float, float] = (-math.pi / 2, math.pi / 2)  # rad
     ocean_current_range: tuple[float, float] = (-0.3, 0.3)  # m/s, each of oc_x, oc_y
-    #: probability that a reset draws oc_x from the upper half of ``ocean_current_range`` only
-    #: (currents that carry the AUV towards the DS, the hard cells of Figure 9); 0 is Sec. 4.1's
-    #: uniform draw. A training curriculum, not in the paper; evaluation keeps 0.
-    following_current_fraction: float = 0.0
-    #: probability that a reset draws ``|oc_y|`` from the outer half of the range only (strong
-    #: lateral currents, sign kept); 0 is Sec. 4.1's draw. A training curriculum, not in the
-    #: paper; evaluation keeps 0.
-    lateral_current_fraction: float = 0.0
-    #: probability that a reset starts in the near box ``near_start_x`` x ``near_start_y``
-    #: (heading as ``init_heading``, at rest) instead of Sec. 4.1's start area, so that the
-    #: final approach is practised more often. A training curriculum, not in the paper.
-    near_start_fraction: float = 0.0
+    following_current_fraction: float = training_draw(
+        "training envs: probability that a reset draws oc_x from [0, 0.3] only (following "
+        "currents, the hard cells of Figure 9); evaluation keeps the uniform draw (0: Sec. 4.1; "
+        "not in the paper)"
+    )
+    lateral_current_fraction: float = training_draw(
+        "training envs: probability that a reset draws |oc_y| from [0.15, 0.3] only (strong "
+        "lateral currents, sign kept); evaluation keeps the uniform draw (0: Sec. 4.1; not in "
+        "the paper)"
+    )
+    near_start_fraction: float = training_draw(
+        "training envs: probability that a reset starts 3-8 m before the station (|y| <= 3 m, "
+        "near_start_x x near_start_y, at rest) instead of 25-30 m, to practise the final "
+        "approach; evaluation keeps Sec. 4.1's starts (0: off; not in the paper)"
+    )
     near_start_x: tuple[float, float] = (-8.0, -3.0)  # m
     near_start_y: tuple[float, float] = (-3.0, 3.0)  # m
 
@@ -204,3 +217,10 @@ class TaskOptions:
             self.velocity_noise,
             self.yaw_rate_noise,
         )
+
+
+#: the fields of :class:`TaskOptions` that bias the training envs' resets
+#: (:func:`training_draw`), in their order
+TRAINING_DRAWS: tuple[str, ...] = tuple(
+    f.name for f in dataclasses.fields(TaskOptions) if f.metadata.get("training_draw")
+)

@@ -11,6 +11,7 @@ from dockingrl.agents.saving import pipeline_options
 from dockingrl.agents.world_options import curriculum_levels
 from dockingrl.env import DockingConfig
 from dockingrl.env.levels import level_config
+from dockingrl.env.task_options import TRAINING_DRAWS
 from dockingrl.transforms import (
     ContactSpeedPenalty,
     MissPenaltyFloor,
@@ -18,10 +19,6 @@ from dockingrl.transforms import (
     SuccessBonus,
 )
 from dockingrl.transforms.params import read_filter_params
-
-#: TrainConfig fields that bias the training env's resets (``DockingConfig`` fields of the same
-#: name); evaluation keeps Sec. 4.1's draws
-TRAINING_DRAWS = ("following_current_fraction", "lateral_current_fraction", "near_start_fraction")
 
 
 def env_kwargs(cfg: TrainConfig, level: str | None = None) -> dict:
