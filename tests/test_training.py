@@ -957,3 +957,43 @@ def test_the_progress_bar_shows_success_only_once_an_evaluation_has_run():
     before = progress_fields({"time/steps_per_s": 1234.4}, float("nan"))
     assert before == {"sps": "1234"}
     assert progress_fields({"time/steps_per_s": 10.0}, 97.6) == {"sps": "10", "success": "98%"}
+
+
+def test_a_training_command_builds_and_validates_its_config_once_and_its_env_once(
+    tmp_path, monkeypatch
+):
+    """From ``dockingrl train --recipe ppo`` to its first gradient step the run's config is
+    checked once (the recipe's, the options' and the trainer's checks are one) and one env is
+    built: the one the agent is sized from is the one it trains in."""
+    import torch
+
+    from dockingrl.agents.config import PPOConfig
+    from dockingrl.cli import CommandFailed, main
+    from dockingrl.env.docking import DockingEnv
+
+    checks, envs = [], []
+    check, build = PPOConfig._check_config, DockingEnv.__init__
+    monkeypatch.setattr(PPOConfig, "_check_config", lambda self: checks.append(1) or check(self))
+    monkeypatch.setattr(
+        DockingEnv, "__init__", lambda self, *a, **k: envs.append(1) or build(self, *a, **k)
+    )
+
+    class FirstStep(Exception):
+        pass
+
+    def first_step(self, *args, **kwargs):
+        raise FirstStep
+
+    monkeypatch.setattr(torch.optim.Adam, "step", first_step)
+    argv = ["train", "--recipe", "ppo", "--threads", "1", "--num-envs", "8"]
+    argv += ["--minibatch-size", "256", "--out", str(tmp_path), "--logger", "none"]
+    with pytest.raises(CommandFailed, match="FirstStep"):
+        main([*argv, "--no-progress"])
+    assert (len(checks), len(envs)) == (1, 1)
+    cfg = PPOConfig(num_envs=8)
+    cfg.validate()
+    cfg.validate()  # unchanged: not checked again
+    cfg.num_envs = 0
+    with pytest.raises(ValueError, match="num_envs"):
+        cfg.validate()  # changed: checked again
+    assert len(checks) == 3

@@ -64,6 +64,17 @@ class TrainConfig(*TRAIN_GROUPS):
     recipe: str = ""  # the name of the recipe the config was made from (dockingrl.recipes)
 
     def validate(self) -> None:
+        """Refuse a field out of its range, or fields that cannot train together (a one-line
+        ``ValueError`` naming the field and its value). A config is checked once: validating
+        it again while its fields hold the values it was checked with does nothing."""
+        values = tuple(getattr(self, f.name) for f in fields(self))
+        if self.__dict__.get("_checked") == values:
+            return
+        self._check_config()
+        self.__dict__["_checked"] = values
+
+    def _check_config(self) -> None:
+        """The checks of :meth:`validate`; each config class extends them."""
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not (value == value and abs(value) != float("inf")):
@@ -105,8 +116,8 @@ class OffPolicyConfig(OffPolicyOptions, TrainConfig):
     """What SAC and TD3 share: a replay buffer, soft target updates, the update-to-data
     ratio."""
 
-    def validate(self) -> None:
-        super().validate()
+    def _check_config(self) -> None:
+        super()._check_config()
         self._check_off_policy()
         if self.reset_every and self.actor_average:
             refuse(
@@ -137,8 +148,8 @@ class SACConfig(SACOptions, OffPolicyConfig):
 
     algo: str = "sac"
 
-    def validate(self) -> None:
-        super().validate()
+    def _check_config(self) -> None:
+        super()._check_config()
         if self.privileged_critic and self.mirror_symmetric == "all":
             refuse(
                 self,
@@ -169,8 +180,8 @@ class TD3Config(TD3Options, OffPolicyConfig):
         "uniformly random env steps before learning (learning_starts)", default=100
     )
 
-    def validate(self) -> None:
-        super().validate()
+    def _check_config(self) -> None:
+        super()._check_config()
         self._check_td3()
 
 
@@ -184,8 +195,8 @@ class PPOConfig(PPOOptions, TrainConfig):
     )
     eval_every: int = documented("env steps between periodic evaluations", default=50_000)
 
-    def validate(self) -> None:
-        super().validate()
+    def _check_config(self) -> None:
+        super()._check_config()
         self._check_ppo()
         frames = self.steps_per_env * self.num_envs
         if not 1 <= self.minibatch_size <= frames:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from typing import Any
 
 from dockingrl.agents.config import (
     CONFIG_FIELDS,
@@ -53,7 +54,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser)
 
 
-def _from_command_line(make: Callable[[], TrainConfig]) -> TrainConfig:
+def _from_command_line(make: Callable[[], Any]) -> Any:
     """``make()``, its refusal of a value or an option of the command line raised as a
     :class:`~dockingrl.cli.arguments.UsageError`."""
     try:
@@ -68,11 +69,24 @@ def config_from_recipe(args: argparse.Namespace) -> TrainConfig:
 
     if args.preset is not None:
         raise UsageError("--preset and --recipe exclude each other")
-    recipe = load_recipe(args.recipe)
+    recipe = load_recipe(args.recipe, check=False)  # its config is validated once, below
     if args.algo is not None and args.algo != recipe.algo:
         raise UsageError(f"--algo {args.algo} but recipe {recipe.name!r} is {recipe.algo}")
     args.algo = recipe.algo
-    return _from_command_line(lambda: recipe.make_config(**overrides_from_args(args)))
+    overrides = _from_command_line(lambda: overrides_from_args(args))
+    try:
+        return recipe.make_config(**overrides)
+    except ValueError as exc:
+        own: ValueError | None = exc  # the recipe's own fields at fault, not the options?
+        if overrides:
+            try:
+                recipe.make_config()
+                own = None
+            except ValueError as recipe_error:
+                own = recipe_error
+        if own is not None:
+            raise ValueError(f"recipe {args.recipe}: {own}") from None
+        raise UsageError(str(exc)) from exc
 
 
 def cmd_train(args: argparse.Namespace) -> int:

@@ -81,8 +81,10 @@ def _beside(spec: str, other: str) -> str:
     return other
 
 
-def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
+def load_recipe(spec: str | Path, _depth: int = 0, *, check: bool = True) -> Recipe:
     """The shipped recipe named ``spec``, or the recipe in the YAML file at path ``spec``.
+    With ``check`` its config is built and validated (a caller that builds the config with
+    overrides at once and validates that, :meth:`Recipe.make_config`, passes ``False``).
 
     Raises ``ValueError`` (one line) for an unknown name, an unreadable or malformed file, an
     unknown algorithm or config field, a value of the wrong type, a ``base`` of another
@@ -142,7 +144,8 @@ def load_recipe(spec: str | Path, _depth: int = 0) -> Recipe:
     recipe = Recipe(name, algo, str(data.get("description") or ""), config, first_stage)
     try:
         check_types(algo, config)
-        recipe.make_config()
+        if check:
+            recipe.make_config()
     except (TypeError, ValueError) as exc:
         raise ValueError(f"recipe {spec}: {exc}") from None
     return recipe

@@ -12,26 +12,23 @@ from dockingrl.scenarios import check_mirror_symmetric, make_env
 from dockingrl.training.options import training_draws, training_transforms
 
 
-def env_shapes(cfg: TrainConfig, env_kwargs: dict) -> tuple:
-    """``(obs_dim, action_spec, max_dist)`` of the run's scenario, from a one-env probe; with
-    ``mirror_augment`` it checks that the scenario's observation mirrors."""
-    probe = make_env(cfg.scenario, 1, seed=0, **env_kwargs)
-    if getattr(cfg, "mirror_augment", False):
-        check_mirror_symmetric(probe)
-    sim = base_env(probe)
+def env_shapes(env) -> tuple:
+    """``(obs_dim, action_spec, max_dist)`` of a run's env (:func:`training_env`): the size of
+    the observation its agent reads, one env's command spec, eq. 4's distance."""
     return (
-        probe.observation_spec["observation"].shape[-1],
-        probe.action_spec[0].clone(),
-        sim.config.max_dist,
+        env.observation_spec["observation"].shape[-1],
+        env.action_spec[0].clone(),
+        base_env(env).config.max_dist,
     )
 
 
 def training_env(cfg: TrainConfig, env_kwargs: dict, frames: int):
     """The batched training env of a run that has trained ``frames`` env steps: the run's
-    world with its training draws and training transforms."""
+    world with its training draws and training transforms. With ``mirror_augment`` it checks
+    that the world mirrors (:func:`~dockingrl.scenarios.check_mirror_symmetric`)."""
     kwargs = dict(env_kwargs)
     kwargs["config"] = training_draws(cfg, kwargs["config"])
-    return make_env(
+    env = make_env(
         cfg.scenario,
         cfg.num_envs,
         seed=cfg.seed * 1_000_003 + frames,
@@ -40,6 +37,9 @@ def training_env(cfg: TrainConfig, env_kwargs: dict, frames: int):
         transforms=training_transforms(cfg),
         **kwargs,
     )
+    if getattr(cfg, "mirror_augment", False):
+        check_mirror_symmetric(env)
+    return env
 
 
 def make_collector(

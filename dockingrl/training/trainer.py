@@ -51,7 +51,10 @@ class Trainer:
             codes=[self.code],
         )
         self.env_kwargs = env_kwargs(cfg)
-        self.obs_dim, self.action_spec, self.max_dist = env_shapes(cfg, self.env_kwargs)
+        #: the env of the stage at ``frames`` 0, built once: the agent is sized from it and a
+        #: new run trains in it (a resumed run builds the env of the step it resumes at)
+        self._first_env = training_env(cfg, self._stage_kwargs(stage_at(cfg, 0)[0]), 0)
+        self.obs_dim, self.action_spec, self.max_dist = env_shapes(self._first_env)
         torch.manual_seed(cfg.seed)
         self.agent: Agent = make_agent(
             cfg, self.obs_dim, self.action_spec, self.max_dist, cfg.device
@@ -107,20 +110,25 @@ class Trainer:
             stops.install()
             while self.progress.frames < cfg.total_steps and not self.out_of_time:
                 level, until = stage_at(cfg, self.progress.frames)
-                # the curriculum's world for its stage; the run's own without a curriculum
-                kwargs = self.env_kwargs if level == cfg.train_level else env_kwargs(cfg, level)
-                self._run_stage(logger, kwargs, until, stops, bar)
+                self._run_stage(logger, level, until, stops, bar)
         finally:
             stops.restore()
             if bar is not None:
                 bar.close()
 
-    def _run_stage(self, logger, kwargs, until, stops, bar) -> None:
-        """Collect and learn in the world of ``kwargs`` from ``frames`` to ``until`` env steps
+    def _stage_kwargs(self, level: str) -> dict:
+        """The env options of the world at ``level``: the curriculum's world for its stage,
+        the run's own at ``train_level``."""
+        return self.env_kwargs if level == self.cfg.train_level else env_kwargs(self.cfg, level)
+
+    def _run_stage(self, logger, level, until, stops, bar) -> None:
+        """Collect and learn in the world of ``level`` from ``frames`` to ``until`` env steps
         (the batch that reaches it included), or to the time budget or a stop request."""
         cfg = self.cfg
         set_up = time.perf_counter()
-        env = training_env(cfg, kwargs, self.progress.frames)
+        env, self._first_env = self._first_env, None
+        if env is None or self.progress.frames > 0:
+            env = training_env(cfg, self._stage_kwargs(level), self.progress.frames)
         collector = make_collector(
             cfg,
             env,
