@@ -271,10 +271,15 @@ def test_modules_to_first_gradient_lists_the_modules_a_training_run_enters(capsy
     assert "before its first gradient step" in capsys.readouterr().err
     assert script.main([*argv, "--minibatch-size", "256"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    modules, count = lines[:-1], lines[-1]
+    modules, count, path, path_count = lines[:-3], lines[-3], lines[-2], lines[-1]
     assert count == f"{len(modules)} modules"
     assert {"dockingrl.cli.train", "dockingrl.agents.ppo", "dockingrl.env.docking"} <= set(modules)
     assert len(set(modules)) == len(modules)
+    # a module entered only while importing (the SAC agent's class body) is not passed through
+    assert "dockingrl.agents.sac" not in modules
+    on_path = path.removeprefix("call path: ").split(" -> ")
+    assert on_path[0] == "dockingrl.cli" and on_path[-1] == "dockingrl.agents.ppo"
+    assert set(on_path) <= set(modules) and path_count == f"{len(on_path)} modules on the call path"
     import torch
 
     assert torch.optim.Adam.step.__name__ == "step"  # the optimiser is put back
