@@ -25,10 +25,12 @@ def main(argv: list[str]) -> int:
 
     seen: dict[str, None] = {}
 
+    top = sys._getframe()  # what called this script is not on the way
+
     def importing(frame) -> bool:
         """Whether ``frame`` runs within an import: below a module's top-level code."""
-        while frame is not None:
-            if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") != "__main__":
+        while frame is not None and frame is not top:
+            if frame.f_code.co_name == "<module>":
                 return True
             frame = frame.f_back
         return False
