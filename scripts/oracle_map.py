@@ -9,10 +9,11 @@ which cells of Figure 9's map can be docked at all under eq. 3's command bounds 
 
 Cells are those of ``dockingrl eval --map`` (``--cells`` values per axis in
 ``[-limit, limit]``), optionally only the ones with ``oc_x >= --oc-x-min`` and
-``|oc_y| >= --abs-oc-y-min``. Each cell runs ``--trials`` episodes from random start poses
-(``--seed``), the planner choosing every command from the true state or, with ``--state
-filter``, from the EKF's estimate in the compound scenario's noisy world. ``--compare`` prints a
-learner's ``success_map.json`` beside it.
+``|oc_y| >= --abs-oc-y-min``. ``--vehicle fossen`` flies (and plans on) the Fossen vehicle
+(docs/vehicles.md) instead of the paper's model. Each cell runs ``--trials`` episodes from
+random start poses (``--seed``), the planner choosing every command from the true state or,
+with ``--state filter``, from the EKF's estimate in the compound scenario's noisy world.
+``--compare`` prints a learner's ``success_map.json`` beside it.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import time
 import numpy as np
 import torch
 
+from dockingrl.env.config import DockingConfig
 from dockingrl.evaluation import (
     base_env,
     current_grid,
@@ -67,6 +69,12 @@ def main(argv: list[str] | None = None) -> int:
         help="also draw PREFIX_map.png (the planner's success per cell) and PREFIX_paths.png "
         "(the final approach of each cell's first trial)",
     )
+    parser.add_argument(
+        "--vehicle",
+        choices=("paper", "fossen"),
+        default="paper",
+        help="the vehicle the planner flies and plans on (docs/vehicles.md)",
+    )
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -94,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     )
     scenario = "no_noise" if args.state == "true" else "compound"
-    env = make_env(scenario, len(currents), seed=args.seed)
+    config = DockingConfig(vehicle=args.vehicle)
+    env = make_env(scenario, len(currents), seed=args.seed, config=config)
     base_env(env).set_initial_state(ocean_current=torch.as_tensor(currents))
     start = time.perf_counter()
     out = run_episodes(planner, env, progress=sys.stderr.isatty(), record_trajectories=True)
@@ -135,6 +144,7 @@ def main(argv: list[str] | None = None) -> int:
             "command": command,
             "planner": vars(planner.config),
             "scenario": scenario,
+            "vehicle": args.vehicle,
             "trials_per_cell": args.trials,
             "seed": args.seed,
             "success_rate": rate,

@@ -345,8 +345,32 @@ def test_a_state_round_trip_keeps_the_thrusters():
     env.set_state(state)
     again = env._step(_action_n((0.3, -0.2), 4))["true_state"]
     assert torch.equal(after, again)
-    with pytest.raises(ValueError, match="paper's vehicle only"):
-        env.simulate(state, torch.zeros(4, 2))
+
+
+def test_simulate_steps_the_fossen_vehicle_as_the_env_does():
+    env = fossen_env(4)
+    env.rollout(20, policy=_fixed_policy, break_when_any_done=False)
+    state = env.get_state()
+    action = torch.tensor([[0.8, 0.3], [-0.4, -0.3], [0.2, 0.0], [1.5, -2.0]])
+    next_state, out = env.simulate(state, action)
+    td = env._step(_action_n((0.0, 0.0), 4).set("action", action))
+    torch.testing.assert_close(
+        torch.cat((next_state["pose"], next_state["velocity"]), -1), td["true_state"]
+    )
+    for key in ("reward", "terminated", "success", "contact_score", "contact_speed"):
+        torch.testing.assert_close(out[key], td[key])
+    after = env.get_state()
+    torch.testing.assert_close(after["realism", "thrust"], next_state["realism", "thrust"])
+    torch.testing.assert_close(after["integral"], next_state["integral"])
+    # a batch of another size (a planner's samples) steps too
+    many = state.unsqueeze(1).expand(4, 3).reshape(12).clone()
+    wide, _ = env.simulate(many, action.repeat_interleave(3, 0))
+    torch.testing.assert_close(wide["pose"][::3], next_state["pose"])
+    with pytest.raises(ValueError, match="nominal Fossen vehicle"):
+        fossen_env(4, mass_scale=(0.9, 1.1)).simulate(state, action)
+    mixed = DockingEnv(4, config=DockingConfig(vehicle="mixed", noise=False), seed=0)
+    with pytest.raises(ValueError, match="vehicle='mixed'"):
+        mixed.simulate(state, action)
 
 
 def _action_n(action, n):

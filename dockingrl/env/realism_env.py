@@ -239,6 +239,32 @@ class RealismMixin:
         self._integral, self._previous_error = integral, error
         return out
 
+    def _simulate_fossen(self, state: TensorDictBase, action: torch.Tensor):
+        """One noise-free step of the nominal Fossen vehicle from ``state`` (any batch size;
+        :meth:`~dockingrl.env.state_access.StateAccessMixin.simulate`): ``(pose, velocity,
+        integral, error, step_count, out, thrust)``."""
+        if "realism" not in state.keys() or "thrust" not in state["realism"].keys():
+            raise KeyError("state lacks ['realism']['thrust']: the Fossen vehicle's thrusters")
+        cfg, current = self.config, state["ocean_current"]
+        pose, velocity, thrust, integral, error, tau = fossen_step(
+            state["pose"],
+            state["velocity"],
+            state["realism"]["thrust"],
+            state["integral"],
+            action,
+            current,
+            SPARUS_II,
+            self._fossen_nominal,
+            self._fossen_hydro,
+            self._strips,
+            cfg.dt,
+            self._fossen_gain,
+        )
+        step_count, out = step_entries(
+            cfg, pose, velocity, current, state["step_count"], tau, self.step_reward, None, None
+        )
+        return pose, velocity, integral, error, step_count, out, thrust
+
     def _step_realistic(self, action: torch.Tensor) -> TensorDictBase:
         """:meth:`_step` with realism options on: the episode's vehicle, the sensors' timing and
         faults, the current's variation and the vehicle's belief about it. Table 2's noise is

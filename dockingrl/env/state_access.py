@@ -106,26 +106,43 @@ class StateAccessMixin:
         """One noise-free step of the dynamics from ``state`` (any batch size), without
         touching the env's own state: ``(next_state, out)`` with ``out`` the step's entries
         (``reward``, ``terminated``, ``success``, ``contact_score``, ``contact_speed``, ...).
-        ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does."""
-        if self.config.vehicle != "paper":
+        ``action`` ``(batch, 2)`` is clipped to the bounds of eq. 3, as :meth:`step` does.
+
+        It steps the paper's vehicle, or the nominal Fossen vehicle (``vehicle="fossen"``
+        without dynamics mismatch; ``state["realism"]["thrust"]`` carries its thrusters). The
+        current is held as ``state`` gives it, and the other realism state (the sensors') is
+        carried unchanged: the step of the dynamics, not of the sensors."""
+        cfg = self.config
+        if cfg.vehicle == "mixed" or (cfg.vehicle == "fossen" and cfg.dynamics_mismatch):
             raise ValueError(
-                f"simulate steps the paper's vehicle only, not vehicle={self.config.vehicle!r}"
+                "simulate steps the paper's vehicle or the nominal Fossen vehicle, not "
+                f"vehicle={cfg.vehicle!r} with dynamics_mismatch={cfg.dynamics_mismatch}"
             )
         action = self._validated_action(action, state.batch_size)
-        pose, velocity, integral, error, step_count, out = self._transition(
-            state["pose"],
-            state["velocity"],
-            state["ocean_current"],
-            state["integral"],
-            state["previous_error"],
-            state["step_count"],
-            action,
-            None,
-        )
+        if cfg.vehicle == "paper":
+            pose, velocity, integral, error, step_count, out = self._transition(
+                state["pose"],
+                state["velocity"],
+                state["ocean_current"],
+                state["integral"],
+                state["previous_error"],
+                state["step_count"],
+                action,
+                None,
+            )
+        else:
+            pose, velocity, integral, error, step_count, out, thrust = self._simulate_fossen(
+                state, action
+            )
         values = (pose, velocity, state["ocean_current"], integral, error, step_count)
         next_state = TensorDict(
             dict(zip(self.STATE_KEYS, values, strict=True)),
             batch_size=state.batch_size,
             device=self.device,
         )
+        if "realism" in state.keys():
+            realism = state["realism"].clone()
+            if cfg.vehicle != "paper":
+                realism["thrust"] = thrust
+            next_state["realism"] = realism
         return next_state, out
