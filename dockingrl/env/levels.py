@@ -1,8 +1,8 @@
 """The stress ladder's levels (``dockingrl stress``, docs/realism.md): the paper's task (L0),
 :class:`DockingConfig` realism options at harsh but realistic values (L1-L5), the Fossen vehicle
-(docs/vehicles.md) alone (F0) and with L5's sensors and current (F5), and both vehicles with all
-of L5's ranges (M5), for evaluating a policy and for training over the realistic task
-(``train_level``)."""
+(docs/vehicles.md) alone (F0) and with L5's sensors and current (F5), and either vehicle per
+episode alone (M0), with L4's sensors and current (M4) or with all of L5's ranges (M5), for
+evaluating a policy and for training over the realistic task (``train_level``)."""
 
 from __future__ import annotations
 
@@ -49,6 +49,11 @@ LEVELS: dict[str, tuple[str, dict]] = {
     "F5": (
         "the Fossen vehicle, L5's sensors and current",
         {**HARSH_SENSORS, **HARSH_CURRENT, "vehicle": "fossen"},
+    ),
+    "M0": ("either vehicle per episode", {"vehicle": "mixed"}),
+    "M4": (
+        "either vehicle per episode, L4's sensors and current",
+        {**HARSH_SENSORS, **HARSH_CURRENT, "vehicle": "mixed"},
     ),
     "M5": (
         "either vehicle per episode, L5's sensors, current and dynamics",
