@@ -1,6 +1,6 @@
 """The position and heading error of the paper's EKF and of the EKF that estimates the
 current's error (for several random walks of that error), at every ladder level, with and
-without the chi-square gate, all compensating
+with and without the chi-square gate (``--gates``), all compensating
 the USBL latency, on the same recorded rollouts of the managed surge controller (200 envs x 400
 steps, seed 0; the first 10 steps of each episode left out, as ``evaluate_filter`` does). The
 position error is also given within ``--near`` m of the station, where a policy lines up.
@@ -42,7 +42,13 @@ def main(argv: list[str] | None = None) -> dict:
         default="0.005,0.05,0.1",
         help="random walks of the estimating filter's current error to compare (m/s a step)",
     )
+    parser.add_argument(
+        "--gates",
+        default="none,13.8",
+        help="chi-square gates to compare, comma-separated ('none': no gate)",
+    )
     args = parser.parse_args(argv)
+    gates = [None if g.strip() == "none" else float(g) for g in args.gates.split(",")]
     torch.set_num_threads(1)
     rows, wall = [], {}
     for level in args.levels.split(","):
@@ -53,7 +59,7 @@ def main(argv: list[str] | None = None) -> dict:
         near = keep & (data["true_state"][..., :2].norm(dim=-1) < args.near)
         stds = [float(x) for x in args.error_stds.split(",")]
         for estimate, std in [(False, None)] + [(True, x) for x in stds]:
-            for gate in (None, 13.8):
+            for gate in gates:
                 options = {"estimate_current": estimate}
                 if estimate:
                     options["current_error_std"] = std

@@ -283,3 +283,14 @@ def test_modules_to_first_gradient_lists_the_modules_a_training_run_enters(capsy
     import torch
 
     assert torch.optim.Adam.step.__name__ == "step"  # the optimiser is put back
+
+
+def test_a_wider_gate_keeps_the_filter_on_the_fossen_vehicle(tmp_path):
+    """At F5 the gate of 13.8 locks the current-estimating filter out (the Fossen vehicle's
+    sway and slower response are outside eq. 24's model); 50 keeps it on its fixes."""
+    out = tmp_path / "accuracy.json"
+    argv = [str(out), "--envs", "32", "--steps", "300", "--levels", "F5", "--error-stds", "0.05"]
+    load_script("current_filter_accuracy.py").main([*argv, "--gates", "13.8,50"])
+    rows = json.loads(out.read_text())["rows"]
+    rmse = {r["gate"]: r["rmse_position_m"] for r in rows if r["estimate_current"]}
+    assert rmse[50.0] < 0.5 * rmse[13.8]
