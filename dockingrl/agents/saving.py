@@ -9,6 +9,7 @@ from pathlib import Path
 import torch
 from torchrl.data import Bounded
 
+from dockingrl.agents.world_options import PAPER_RESPONSE_RATE
 from dockingrl.io import (
     ArtifactError,
     first_line,
@@ -62,14 +63,16 @@ def pipeline_options(config) -> dict:
     config, or one saved as a dict: a saved policy's ``config``, :func:`saved_config`) fixes
     for whatever runs its policy: ``observe_current``, ``observe_command``,
     ``observe_filter_std``, ``action_repeat`` and the filter's ``compensate_latency``,
-    ``estimate_current`` and ``filter_gate`` (as ``ekf_kwargs``), where they differ from the
-    paper's. Training, ``dockingrl eval --policy``, ``dockingrl stress`` and
-    ``OnboardPolicy.from_file`` all take them from here."""
+    ``estimate_current``, ``filter_gate`` and ``filter_response_rate`` (as ``ekf_kwargs``),
+    where they differ from the paper's. Training, ``dockingrl eval --policy``,
+    ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take them from here."""
     cfg = saved_config(config)
     options: dict = {}
     ekf_kwargs = {k: True for k in ("compensate_latency", "estimate_current") if getattr(cfg, k)}
     if cfg.filter_gate:
         ekf_kwargs["gate"] = float(cfg.filter_gate)
+    if cfg.filter_response_rate != PAPER_RESPONSE_RATE:
+        ekf_kwargs["k_v"] = ekf_kwargs["k_w"] = float(cfg.filter_response_rate)
     if ekf_kwargs:
         options["ekf_kwargs"] = ekf_kwargs
     for name in OBSERVATION_OPTIONS:

@@ -12,6 +12,9 @@ from dockingrl.env.config import noise_scale_problem
 from dockingrl.env.levels import LEVELS
 from dockingrl.env.task_options import TRAINING_DRAWS
 
+#: k_v = k_w of eq. 24 (1/s), the EKF's default
+PAPER_RESPONSE_RATE = 2.5
+
 
 def curriculum_levels(curriculum: str) -> list[str]:
     """The levels of a ``train_curriculum`` string, in order (none for ``''``)."""
@@ -67,6 +70,13 @@ class WorldOptions:
         "99.9th percentile at 2 degrees of freedom; 0: no gate, the paper's; docs/realism.md)",
         default=0.0,
     )
+    filter_response_rate: float = documented(
+        "rate (1/s) of the first-order surge and yaw-rate responses in the EKF's motion model "
+        "of a filtered scenario (k_v = k_w of eq. 24; 2.5: the paper's model, whose low-level "
+        "loop reaches a command in about a second; the Fossen vehicle answers more slowly, "
+        "docs/realism.md)",
+        default=2.5,
+    )
     observe_current: bool = documented(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
         default=False,
@@ -120,6 +130,12 @@ class WorldOptions:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
         if not (0.0 <= self.filter_gate < math.inf):
             refuse(self, "filter_gate", "must be a chi-square threshold > 0, or 0 for no gate")
+        if not (0.0 < self.filter_response_rate < math.inf):
+            refuse(self, "filter_response_rate", "must be a rate > 0 (1/s)")
         for name in ("compensate_latency", "estimate_current", "filter_gate", "observe_filter_std"):
             if getattr(self, name) and self.scenario not in FILTERED_OBSERVATION_KEYS:
                 refuse(self, name, f"scenario {self.scenario!r} has no filter")
+        if self.filter_response_rate != PAPER_RESPONSE_RATE and (
+            self.scenario not in FILTERED_OBSERVATION_KEYS
+        ):
+            refuse(self, "filter_response_rate", f"scenario {self.scenario!r} has no filter")

@@ -186,6 +186,8 @@ class OnboardPolicy(nn.Module):
             ``cov`` ``(B, 7, 7)``; :class:`~dockingrl.transforms.current_filter.
             CurrentEstimatingEKF`).
         gate: the filter's chi-square innovation gate (``--filter-gate``; ``None``: none).
+        k_v, k_w: the rates of the filter's surge and yaw-rate responses (eq. 24;
+            ``--filter-response-rate``).
     """
 
     def __init__(
@@ -202,6 +204,8 @@ class OnboardPolicy(nn.Module):
         compensate_latency: bool = False,
         estimate_current: bool = False,
         gate: float | None = None,
+        k_v: float = 2.5,
+        k_w: float = 2.5,
     ) -> None:
         super().__init__()
         if scenario not in SCENARIOS:
@@ -214,6 +218,7 @@ class OnboardPolicy(nn.Module):
             ("compensate_latency", compensate_latency),
             ("estimate_current", estimate_current),
             ("gate", gate is not None),
+            ("the filter's response rates", (k_v, k_w) != (2.5, 2.5)),
         ):
             if on and not self.uses_filter:
                 raise ValueError(f"scenario {scenario!r} has no filter: {name} does not apply")
@@ -225,6 +230,8 @@ class OnboardPolicy(nn.Module):
                 compensate_latency=compensate_latency,
                 estimate_current=estimate_current,
                 gate=gate,
+                k_v=k_v,
+                k_w=k_w,
             )
         if filter_params is not None:
             ekf.load_filter_params(filter_params)

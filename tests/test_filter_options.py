@@ -1,5 +1,6 @@
-"""``filter_gate``: the EKF's chi-square innovation gate as a training option, carried by the
-saved policy to evaluation, the stress ladder and the onboard policy and its export."""
+"""``filter_gate`` and ``filter_response_rate``: the EKF's chi-square innovation gate and the
+rates of its motion model as training options, carried by the saved policy to evaluation, the
+stress ladder and the onboard policy and its export."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from dockingrl.env.levels import level_config
 from dockingrl.scenarios import make_env
 
 GATE = 13.816
+RATE = 1.0
 
 
 @pytest.mark.parametrize(
@@ -21,6 +23,12 @@ GATE = 13.816
         ({"scenario": "filtered", "filter_gate": -1.0}, "filter_gate: must be a chi-square"),
         ({"scenario": "filtered", "filter_gate": float("inf")}, "filter_gate: must be finite"),
         ({"scenario": "noise", "filter_gate": GATE}, "filter_gate: scenario 'noise' has no filter"),
+        ({"scenario": "filtered", "filter_response_rate": 0.0}, "filter_response_rate: must be"),
+        ({"scenario": "filtered", "filter_response_rate": float("nan")}, "filter_response_rate"),
+        (
+            {"scenario": "noise", "filter_response_rate": RATE},
+            "filter_response_rate: scenario 'noise' has no filter",
+        ),
     ],
 )
 def test_bad_gates_are_refused(fields, message):
@@ -69,17 +77,21 @@ def test_a_run_trained_with_it_carries_it_everywhere(tmp_path):
         final_eval_episodes=2,
         train_level="L1",
         filter_gate=GATE,
+        filter_response_rate=RATE,
     )
+    expected = {"gate": GATE, "k_v": RATE, "k_w": RATE}
     kwargs = env_kwargs(cfg)
-    assert kwargs["ekf_kwargs"] == {"gate": GATE}
+    assert kwargs["ekf_kwargs"] == expected
     env = make_env("filtered", 2, seed=0, **kwargs)
-    assert next(t for t in env.transform if hasattr(t, "gate")).gate == GATE
+    ekf = next(t for t in env.transform if hasattr(t, "gate"))
+    assert (ekf.gate, ekf.k_v, ekf.k_w) == (GATE, RATE, RATE)
     train(cfg, progress=False)
     saved = json.loads((tmp_path / "gated" / "config.json").read_text())
-    assert saved["filter_gate"] == GATE
-    assert pipeline_options(saved)["ekf_kwargs"] == {"gate": GATE}
+    assert (saved["filter_gate"], saved["filter_response_rate"]) == (GATE, RATE)
+    assert pipeline_options(saved)["ekf_kwargs"] == expected
     path = tmp_path / "gated" / "policy.pt"
-    assert OnboardPolicy.from_file(path).step.ekf.gate == GATE
+    onboard = OnboardPolicy.from_file(path).step.ekf
+    assert (onboard.gate, onboard.k_v, onboard.k_w) == (GATE, RATE, RATE)
     policy, _, scenario, options, _ = resolve_policy(str(path))
     assert stress_ladder(policy, scenario, episodes=2, levels=("L1",), **options)["gate"] == GATE
     ungated = make_config("sac", "paper", scenario="filtered").to_dict()
