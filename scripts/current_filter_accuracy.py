@@ -1,9 +1,9 @@
 """The position and heading error of the paper's EKF and of the EKF that estimates the
 current's error (for several random walks of that error), at every ladder level, with and
-without the chi-square gate (``--gates``), all compensating the USBL latency, on the same
-recorded rollouts of the managed surge controller (200 envs x 400
-steps, ``--seed``, 0 by default; the first 10 steps of each episode left out, as
-``evaluate_filter`` does). The
+without the chi-square gate (``--gates``), for several rates of the motion model's surge and
+yaw-rate responses (``--rates``, k_v = k_w of eq. 24), all compensating the USBL latency, on
+the same recorded rollouts of the managed surge controller (200 envs x 400 steps, ``--seed``,
+0 by default; the first 10 steps of each episode left out, as ``evaluate_filter`` does). The
 position error is also given within ``--near`` m of the station, where a policy lines up.
 
     python scripts/current_filter_accuracy.py results/stress/current_estimation/filter_accuracy.json
@@ -49,8 +49,15 @@ def main(argv: list[str] | None = None) -> dict:
         default="none,13.8",
         help="chi-square gates to compare, comma-separated ('none': no gate)",
     )
+    parser.add_argument(
+        "--rates",
+        default="2.5",
+        help="rates (1/s) of the filter's surge and yaw-rate responses to compare, "
+        "comma-separated (2.5: eq. 24's)",
+    )
     args = parser.parse_args(argv)
     gates = [None if g.strip() == "none" else float(g) for g in args.gates.split(",")]
+    rates = [float(r) for r in args.rates.split(",")]
     torch.set_num_threads(1)
     rows, wall = [], {}
     for level in args.levels.split(","):
@@ -61,8 +68,8 @@ def main(argv: list[str] | None = None) -> dict:
         near = keep & (data["true_state"][..., :2].norm(dim=-1) < args.near)
         stds = [float(x) for x in args.error_stds.split(",")]
         for estimate, std in [(False, None)] + [(True, x) for x in stds]:
-            for gate in gates:
-                options = {"estimate_current": estimate}
+            for gate, rate in [(g, r) for g in gates for r in rates]:
+                options = {"estimate_current": estimate, "k_v": rate, "k_w": rate}
                 if estimate:
                     options["current_error_std"] = std
                 ekf = make_filter(config, gate=gate, compensate_latency=True, **options)
@@ -74,6 +81,7 @@ def main(argv: list[str] | None = None) -> dict:
                     "estimate_current": estimate,
                     "current_error_std": std,
                     "gate": gate,
+                    "response_rate": rate,
                     "rmse_position_m": float(error[:, :2].pow(2).sum(-1).mean().sqrt()),
                     "rmse_position_near_m": float(full[near][:, :2].pow(2).sum(-1).mean().sqrt()),
                     "near_samples": int(near.sum()),

@@ -294,3 +294,14 @@ def test_a_wider_gate_keeps_the_filter_on_the_fossen_vehicle(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     rmse = {r["gate"]: r["rmse_position_m"] for r in rows if r["estimate_current"]}
     assert rmse[50.0] < 0.5 * rmse[13.8]
+
+
+def test_a_slower_motion_model_tracks_the_fossen_vehicle(tmp_path):
+    """The Fossen vehicle answers more slowly than eq. 24's 2.5 1/s: a filter that assumes
+    1.0 1/s follows it closer at F5 (results/filter/rate_accuracy.json)."""
+    out = tmp_path / "accuracy.json"
+    argv = [str(out), "--envs", "32", "--steps", "300", "--levels", "F5", "--error-stds", "0.05"]
+    load_script("current_filter_accuracy.py").main([*argv, "--gates", "50", "--rates", "1,2.5"])
+    rows = json.loads(out.read_text())["rows"]
+    rmse = {r["response_rate"]: r["rmse_heading_rad"] for r in rows if r["estimate_current"]}
+    assert rmse[1.0] < 0.7 * rmse[2.5]
