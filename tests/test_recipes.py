@@ -12,7 +12,7 @@ from dockingrl.recipes import load_recipe, recipe_names
 
 SIX = ["paper-sac", "paper-td3", "paper-ppo", "sac", "td3", "ppo"]
 #: every shipped recipe: one per algorithm and purpose
-SHIPPED = [*SIX, "sac-robust"]
+SHIPPED = [*SIX, "sac-robust", "ppo-robust"]
 
 #: a run of seconds, whatever the recipe: 4 envs, small networks, a few episodes
 TINY = [
@@ -170,7 +170,7 @@ def test_train_with_every_recipe(name, tmp_path, capsys, short_episodes):
         "--recipe",
         name,
         "--scenario",
-        "filtered" if name == "sac-robust" else "noise",
+        "filtered" if name.endswith("-robust") else "noise",
         "--seed",
         "1",
         "--out",
