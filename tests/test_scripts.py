@@ -305,3 +305,22 @@ def test_a_slower_motion_model_tracks_the_fossen_vehicle(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     rmse = {r["response_rate"]: r["rmse_heading_rad"] for r in rows if r["estimate_current"]}
     assert rmse[1.0] < 0.7 * rmse[2.5]
+
+
+def test_robust_table_pools_the_seeds_of_each_level(tmp_path):
+    def ladder(seed, rates):
+        levels = [{"name": n, "success_rate": r} for n, r in rates.items()]
+        return {"episodes": 100, "seed": seed + 20000, "levels": levels}
+
+    for seed, rates in ((100, {"L0": 90.0, "F5": 80.0}), (101, {"L0": 94.0, "F5": 86.0})):
+        folder = tmp_path / "stress" / f"ppo-robust__s{seed}"
+        folder.mkdir(parents=True)
+        (folder / "stress.json").write_text(json.dumps(ladder(seed, rates)))
+    rows = load_script("robust_table.py").main([str(tmp_path / "stress"), "--out", str(tmp_path)])
+    f5 = next(r for r in rows if r["level"] == "F5")
+    assert (f5["seeds"], f5["episode_seeds"], f5["mean"]) == ([100, 101], [20100, 20101], 83.0)
+    low, high = f5["episodes_ci"]
+    assert low < 83.0 < high and f5["seed_ci"][0] < low  # two seeds: a wide t interval
+    assert "| `ppo-robust` | F5 | 80.0, 86.0 | 83.0 |" in (tmp_path / "table.md").read_text()
+    with pytest.raises(ValueError, match="no <recipe>__s<seed>"):
+        load_script("robust_table.py").robust_table(tmp_path / "empty")

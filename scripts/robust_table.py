@@ -1,0 +1,93 @@
+"""The stress ladders of the recipes for a vehicle on held-out seeds, as one table: each
+level's success per training seed, the seeds' mean with its 95 % Student-t interval, and the
+95 % Wilson interval over all their episodes. Reads ``STRESS/<recipe>__s<seed>/stress.json``
+(``dockingrl stress --out``); writes ``table.json`` and ``table.md`` in ``--out``.
+
+    python scripts/robust_table.py results/robust/stress --out results/robust
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+from dockingrl.io import atomic_write, write_json
+from dockingrl.provenance import script_command
+from dockingrl.table.claims import episodes_ci, seed_ci
+
+
+def robust_table(stress_dir: Path) -> list[dict]:
+    """One row per recipe and level, in the order of the ladders' levels."""
+    runs: dict[str, dict[int, dict]] = defaultdict(dict)
+    for path in sorted(stress_dir.glob("*__s*/stress.json")):
+        recipe, seed = path.parent.name.rsplit("__s", 1)
+        runs[recipe][int(seed)] = json.loads(path.read_text())
+    if not runs:
+        raise ValueError(f"{stress_dir}: no <recipe>__s<seed>/stress.json")
+    rows = []
+    for recipe, by_seed in runs.items():
+        seeds = sorted(by_seed)
+        levels = [level["name"] for level in by_seed[seeds[0]]["levels"]]
+        for name in levels:
+            found = [
+                next((lv for lv in by_seed[s]["levels"] if lv["name"] == name), None) for s in seeds
+            ]
+            if None in found:
+                raise ValueError(f"{recipe}: level {name} is missing from a seed's ladder")
+            success = [float(lv["success_rate"]) for lv in found]
+            episodes = [int(by_seed[s]["episodes"]) for s in seeds]
+            rows.append(
+                {
+                    "recipe": recipe,
+                    "level": name,
+                    "seeds": seeds,
+                    "episode_seeds": [int(by_seed[s]["seed"]) for s in seeds],
+                    "episodes_per_seed": episodes,
+                    "success_per_seed": success,
+                    "mean": sum(success) / len(success),
+                    "seed_ci": seed_ci(success),
+                    "episodes_ci": episodes_ci(success, episodes),
+                }
+            )
+    return rows
+
+
+def markdown(rows: list[dict]) -> str:
+    def ci(v):
+        return "-" if v is None else f"[{v[0]:.1f}, {v[1]:.1f}]"
+
+    lines = [
+        "| recipe | level | success % per seed | mean % | seeds' 95 % interval | episodes' 95 % "
+        "interval |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        per_seed = ", ".join(f"{s:.1f}" for s in r["success_per_seed"])
+        lines.append(
+            f"| `{r['recipe']}` | {r['level']} | {per_seed} | {r['mean']:.1f} | "
+            f"{ci(r['seed_ci'])} | {ci(r['episodes_ci'])} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("stress", type=Path, help="folder of <recipe>__s<seed>/stress.json")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    rows = robust_table(args.stress)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_json(
+        args.out / "table.json", {"command": script_command("robust_table.py", argv), "rows": rows}
+    )
+    text = markdown(rows)
+    atomic_write(args.out / "table.md", lambda tmp: tmp.write_text(text))
+    print(text, end="")
+    return rows
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
