@@ -31,6 +31,8 @@ def robust_table(stress_dir: Path) -> list[dict]:
     for recipe, by_seed in runs.items():
         seeds = sorted(by_seed)
         levels = [level["name"] for level in by_seed[seeds[0]]["levels"]]
+        episodes = [int(by_seed[s]["episodes"]) for s in seeds]
+        episode_seeds = [int(by_seed[s]["seed"]) for s in seeds]
         for name in levels:
             found = [
                 next((lv for lv in by_seed[s]["levels"] if lv["name"] == name), None) for s in seeds
@@ -38,13 +40,12 @@ def robust_table(stress_dir: Path) -> list[dict]:
             if None in found:
                 raise ValueError(f"{recipe}: level {name} is missing from a seed's ladder")
             success = [float(lv["success_rate"]) for lv in found]
-            episodes = [int(by_seed[s]["episodes"]) for s in seeds]
             rows.append(
                 {
                     "recipe": recipe,
                     "level": name,
                     "seeds": seeds,
-                    "episode_seeds": [int(by_seed[s]["seed"]) for s in seeds],
+                    "episode_seeds": episode_seeds,
                     "episodes_per_seed": episodes,
                     "success_per_seed": success,
                     "mean": sum(success) / len(success),

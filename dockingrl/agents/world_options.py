@@ -75,7 +75,7 @@ class WorldOptions:
         "of a filtered scenario (k_v = k_w of eq. 24; 2.5: the paper's model, whose low-level "
         "loop reaches a command in about a second; the Fossen vehicle answers more slowly, "
         "docs/realism.md)",
-        default=2.5,
+        default=PAPER_RESPONSE_RATE,
     )
     observe_current: bool = documented(
         "append the ocean current (DS frame) to the policy's observation (not in the paper)",
@@ -116,6 +116,7 @@ class WorldOptions:
         check_ranges(
             self,
             counts=("action_repeat",),
+            positive=("filter_response_rate",),
             fraction=TRAINING_DRAWS,
             flags=("compensate_latency", "estimate_current", "observe_filter_std"),
         )
@@ -130,8 +131,6 @@ class WorldOptions:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
         if not (0.0 <= self.filter_gate < math.inf):
             refuse(self, "filter_gate", "must be a chi-square threshold > 0, or 0 for no gate")
-        if not (0.0 < self.filter_response_rate < math.inf):
-            refuse(self, "filter_response_rate", "must be a rate > 0 (1/s)")
         for name in ("compensate_latency", "estimate_current", "filter_gate", "observe_filter_std"):
             if getattr(self, name) and self.scenario not in FILTERED_OBSERVATION_KEYS:
                 refuse(self, name, f"scenario {self.scenario!r} has no filter")
