@@ -10,7 +10,7 @@ from helpers import COMMON, SMOKE_EPISODE_STEPS, TINY, tiny_config
 from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, make_config
 from dockingrl.agents.saving import load_policy
 from dockingrl.cli import main as cli_main
-from dockingrl.env import DockingConfig
+from dockingrl.env import DockingConfig, DockingEnv
 from dockingrl.evaluation import evaluate
 from dockingrl.io import save_artifact
 from dockingrl.training import Trainer, read_curves, train
@@ -256,6 +256,7 @@ def test_impossible_configs_are_refused():
         ("sac", "following_current_fraction", 1.5),
         ("td3", "lateral_current_fraction", -0.5),
         ("ppo", "near_start_fraction", 2.0),
+        ("ppo", "train_fossen_fraction", 1.5),
         ("sac", "contact_speed_penalty", float("nan")),  # "must be finite"
     ],
 )
@@ -275,6 +276,23 @@ def test_curricula_reach_the_training_env_only():
     train_config = training_draws(cfg, env_kwargs(cfg)["config"])
     assert {name: getattr(train_config, name) for name in TRAINING_DRAWS} == values
     assert env_kwargs(cfg)["config"] == DockingConfig()  # what evaluations build on
+
+
+def test_the_fossen_share_reaches_mixed_training_envs_only():
+    from dockingrl.training import env_kwargs, training_draws
+
+    cfg = make_config("ppo", train_level="M0", train_fossen_fraction=0.75)
+    evaluation = env_kwargs(cfg)["config"]
+    assert evaluation.vehicle == "mixed" and evaluation.fossen_fraction == 0.5
+    assert training_draws(cfg, evaluation).fossen_fraction == 0.75
+    # a level of one vehicle keeps its config: the share means nothing there
+    single = make_config("ppo", train_fossen_fraction=0.75)
+    assert training_draws(single, env_kwargs(single)["config"]) == DockingConfig()
+    # the share is what the training env flies: all Fossen at 1.0
+    everyone = make_config("ppo", train_level="M0", train_fossen_fraction=1.0)
+    env = DockingEnv(64, config=training_draws(everyone, evaluation), seed=0)
+    env.reset()
+    assert env.on_fossen.all()
 
 
 def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys, short_episodes):

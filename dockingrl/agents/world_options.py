@@ -38,6 +38,12 @@ class WorldOptions:
     following_current_fraction: float = env_field("following_current_fraction")
     lateral_current_fraction: float = env_field("lateral_current_fraction")
     near_start_fraction: float = env_field("near_start_fraction")
+    train_fossen_fraction: float = documented(
+        "training envs of a level that flies either vehicle (M0, M4, M5): the share of their "
+        "episodes flown on the Fossen vehicle; evaluations keep the level's even share (0.5; "
+        "not in the paper)",
+        default=0.5,
+    )
     train_level: str = documented(
         "stress-ladder level (L0-L5, docs/realism.md) whose realism options the run's world "
         "takes: its training env (after train_curriculum's stages) and all its evaluations "
@@ -117,7 +123,7 @@ class WorldOptions:
             self,
             counts=("action_repeat",),
             positive=("filter_response_rate",),
-            fraction=TRAINING_DRAWS,
+            fraction=(*TRAINING_DRAWS, "train_fossen_fraction"),
             flags=("compensate_latency", "estimate_current", "observe_filter_std"),
         )
         for name, sigma in (

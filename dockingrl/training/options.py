@@ -50,8 +50,11 @@ def stage_at(cfg: TrainConfig, frames: int) -> tuple[str, int]:
 
 def training_draws(cfg: TrainConfig, config: DockingConfig) -> DockingConfig:
     """The training env's config: ``config`` with the run's curricula (``TRAINING_DRAWS``)
-    that are on. Evaluations keep ``config``, Sec. 4.1's draws."""
+    that are on, and, on a level of either vehicle, the run's share of Fossen episodes.
+    Evaluations keep ``config``, Sec. 4.1's draws and the level's even share."""
     curricula = {name: getattr(cfg, name) for name in TRAINING_DRAWS if getattr(cfg, name) > 0}
+    if config.vehicle == "mixed" and cfg.train_fossen_fraction != config.fossen_fraction:
+        curricula["fossen_fraction"] = cfg.train_fossen_fraction
     return config.replace(**curricula) if curricula else config
 
 
