@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Set-up and the whole test suite (a few minutes on 2 CPU cores).
+# Set-up and the whole test suite (5-17 min on 2 CPU cores, by the machine).
 set -euo pipefail
 cd "$(dirname "$0")"
 bash scripts/install.sh
