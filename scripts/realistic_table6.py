@@ -8,7 +8,9 @@ then one table per level of the shape of Table 6, with each cell's nominal figur
 
 Each trial's evaluations go to ``OUT/realistic/TRIAL.json`` as they finish (a run again skips
 them: interrupted, it resumes); ``OUT/realistic.md`` and ``OUT/realistic.json`` hold the tables.
-Only held-out training seeds (100 and up) are taken.
+Only held-out training seeds (100 and up) are taken. A trial evaluated once needs its
+``policy.pt`` no more (``dockingrl table --prune-policies`` keeps only each cell's best seed's);
+one with neither is left out, and named.
 """
 
 from __future__ import annotations
@@ -25,13 +27,13 @@ SCENARIOS = ("no_noise", "noise", "filtered", "compound")
 
 
 def finished_runs(root: Path) -> list[Path]:
-    """The run folders under ``root`` whose run has finished (policy, summary and eval) on a
-    held-out training seed."""
+    """The run folders under ``root`` whose run has finished (summary and eval) on a held-out
+    training seed."""
     from dockingrl.evaluation.protocol import HELD_OUT_FROM
 
     runs = []
     for run in sorted(p for p in root.iterdir() if p.is_dir()):
-        files = [run / n for n in ("policy.pt", "summary.json", "eval.json", "config.json")]
+        files = [run / n for n in ("summary.json", "eval.json", "config.json")]
         if all(f.is_file() for f in files):
             if json.loads((run / "config.json").read_text())["seed"] >= HELD_OUT_FROM:
                 runs.append(run)
@@ -179,6 +181,9 @@ def main(argv: list[str] | None = None) -> int:
     for run in finished_runs(args.runs):
         path = folder / f"{run.name}.json"
         if not path.exists():
+            if not (run / "policy.pt").is_file():
+                print(f"{run.name}: no policy.pt and no evaluation: left out", file=sys.stderr)
+                continue
             write_json(path, evaluate_trial(run, args.threads))
             print(f"{run.name}: evaluated", flush=True)
         trials.append(json.loads(path.read_text()))

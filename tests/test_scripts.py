@@ -227,7 +227,9 @@ def test_vehicle_responses_measure_both_models(tmp_path):
     assert results["wall_clock_s"] > 0 and results["command"].startswith("python scripts/")
 
 
-def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(tmp_path, monkeypatch):
+def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(
+    tmp_path, monkeypatch, capsys
+):
     import shutil
 
     script = load_script("realistic_table6.py")
@@ -262,6 +264,21 @@ def test_realistic_table6_evaluates_each_held_out_trial_once_and_tables_it(tmp_p
     (out / "realistic" / done[0]).write_text(json.dumps({**trial, "recipe": "kept"}))
     assert script.main(["--runs", str(runs), "--out", str(out)]) == 0
     assert json.loads((out / "realistic" / done[0]).read_text())["recipe"] == "kept"
+    # a trial evaluated before its policy was pruned stays in the tables; one never evaluated
+    # whose policy is gone is left out, and named
+    (runs / "ppo__compound__s100" / "policy.pt").unlink()
+    shutil.copytree(runs / "ppo__compound__s100", runs / "ppo__filtered__s102")
+    config = {"algo": "ppo", "recipe": "ppo", "scenario": "filtered", "seed": 102}
+    (runs / "ppo__filtered__s102" / "config.json").write_text(json.dumps(config))
+    assert script.main(["--runs", str(runs), "--out", str(out)]) == 0
+    assert (
+        "ppo__filtered__s102: no policy.pt and no evaluation: left out" in capsys.readouterr().err
+    )
+    cells = json.loads((out / "realistic.json").read_text())["F0"]
+    assert sorted((c["scenario"], c["seeds"]) for c in cells) == [
+        ("compound", [100]),
+        ("compound", [101]),
+    ]
 
 
 def test_modules_to_first_gradient_lists_the_modules_a_training_run_enters(capsys):
