@@ -20,7 +20,7 @@ from torch._dynamo.utils import counters
 
 from dockingrl.agents import make_agent, networks
 from dockingrl.agents.config import make_config
-from dockingrl.agents.dropout import SparseDropout
+from dockingrl.agents.networks import SparseDropout
 from dockingrl.evaluation import describe_machine
 from dockingrl.scenarios import make_env
 

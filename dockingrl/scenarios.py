@@ -212,7 +212,7 @@ def make_env(
             what it commanded, and with it the ground velocity tells its own speed through
             the water from the current's drift.
         observe_filter_std: append the standard deviations (m) of the EKF's ``x`` and ``y``
-            (:class:`~dockingrl.transforms.uncertainty.FilterStd`) to ``observation`` (+2
+            (:class:`~dockingrl.transforms.observations.FilterStd`) to ``observation`` (+2
             entries, after the scenario's; ``filtered`` and ``compound`` only). Not in the
             paper: with slow, late or lost fixes (docs/realism.md) it tells the policy how
             far its estimate may be off.
@@ -226,8 +226,8 @@ def make_env(
     from dockingrl.env import DockingEnv
     from dockingrl.env.config import config_or_default
     from dockingrl.transforms import ActionRepeat, CompoundObservation, PreviousAction
+    from dockingrl.transforms.observations import FilterStd
     from dockingrl.transforms.repeat import check_action_repeat
-    from dockingrl.transforms.uncertainty import FilterStd
 
     layout = observation_layout(
         scenario,

@@ -64,7 +64,7 @@ def test_a_dropout_outside_zero_to_one_is_refused(value, says):
 
 @pytest.mark.parametrize(("p", "shape"), [(0.01, (64, 256)), (0.3, (8, 50)), (0.5, (1,))])
 def test_sparse_dropout_zeroes_each_entry_independently_with_probability_p(p, shape):
-    from dockingrl.agents.dropout import SparseDropout
+    from dockingrl.agents.networks import SparseDropout
 
     torch.manual_seed(0)
     dropout = SparseDropout(p)

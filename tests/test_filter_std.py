@@ -13,7 +13,7 @@ from dockingrl.agents.config import make_config
 from dockingrl.env.levels import level_config
 from dockingrl.scenarios import make_env, mirror_signs, observation_layout
 from dockingrl.training.checkpointing import network_differences
-from dockingrl.transforms.uncertainty import position_std
+from dockingrl.transforms.observations import position_std
 
 
 def test_it_is_the_filters_position_std_falling_at_each_fix_and_growing_between():

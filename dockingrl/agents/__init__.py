@@ -1,7 +1,7 @@
 """Policies: the managed surge controller baseline and the SAC / TD3 / PPO agents.
 
-``networks`` (MLPs, critics, actors), ``mirror`` (the mirror through the
-docking axis), ``averaging`` (the actor's moving average), ``nstep`` (n-step targets), ``base``
+``networks`` (MLPs, critics, actors, their dropout and the actor's moving average), ``mirror``
+(the mirror through the docking axis), ``nstep`` (n-step targets), ``base``
 (the ``Agent``), ``off_policy`` (what SAC and TD3 share), one module per algorithm (``sac``,
 ``td3``, ``ppo``) and ``registry`` (``make_agent``, ``build_actor``)."""
 
@@ -11,7 +11,7 @@ from dockingrl.imports import lazy_attributes
 
 _EXPORTS = {
     "AGENTS": "dockingrl.agents.registry",
-    "ActorAverage": "dockingrl.agents.averaging",
+    "ActorAverage": "dockingrl.agents.networks",
     "Agent": "dockingrl.agents.base",
     "ManagedSurgeConstants": "dockingrl.agents.managed_surge",
     "ManagedSurgePolicy": "dockingrl.agents.managed_surge",
@@ -82,7 +82,6 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from dockingrl.agents.averaging import ActorAverage
     from dockingrl.agents.base import Agent
     from dockingrl.agents.managed_surge import (
         ManagedSurgeConstants,
@@ -99,6 +98,7 @@ if TYPE_CHECKING:
     from dockingrl.agents.networks import (
         PRIVILEGED_DIM,
         PRIVILEGED_KEYS,
+        ActorAverage,
         ObservationScale,
         QValueModule,
         TensorModule,

@@ -13,8 +13,8 @@ from torchrl.data import Bounded, TensorDictReplayBuffer
 from torchrl.objectives import SoftUpdate
 from torchrl.objectives.value import GAE
 
-from dockingrl.agents.averaging import ActorAverage
 from dockingrl.agents.config import TrainConfig
+from dockingrl.agents.networks import ActorAverage
 from dockingrl.io import is_count
 
 

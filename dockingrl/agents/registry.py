@@ -6,11 +6,10 @@ from __future__ import annotations
 import torch
 from torchrl.data import Bounded
 
-from dockingrl.agents.averaging import ActorAverage
 from dockingrl.agents.base import Agent
 from dockingrl.agents.config import PPOConfig, SACConfig, TD3Config, TrainConfig
 from dockingrl.agents.mirror import mirror_observation_signs
-from dockingrl.agents.networks import config_observation_scale
+from dockingrl.agents.networks import ActorAverage, config_observation_scale
 from dockingrl.agents.ppo import PPOAgent
 from dockingrl.agents.sac import SACAgent
 from dockingrl.agents.td3 import TD3Agent

@@ -14,8 +14,8 @@ shared file system).
 
 One module per concern: :mod:`~dockingrl.grid.files` reads a grid file,
 :mod:`~dockingrl.grid.folders` reads a trial's state from its folders,
-:mod:`~dockingrl.grid.trial` runs one trial in a Ray worker, :mod:`~dockingrl.grid.view` shows
-the grid while it runs and :mod:`~dockingrl.grid.driver` runs the grid on Ray.
+:mod:`~dockingrl.grid.trial` runs one trial in a Ray worker and :mod:`~dockingrl.grid.driver`
+runs the grid on Ray and shows it while it runs.
 """
 
 from dockingrl.grid.driver import run_grid

@@ -27,7 +27,7 @@ from dockingrl.gym.bare import DockingGymEnv, gym_task_problem, reading_bounds
 from dockingrl.scenarios import layout_options, make_env, observation_layout
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.ekf import filter_entries, measurement_function, measurement_noise_std
-from dockingrl.transforms.uncertainty import position_std
+from dockingrl.transforms.observations import position_std
 
 
 def scenario_pipeline(

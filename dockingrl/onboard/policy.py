@@ -41,8 +41,8 @@ from dockingrl.scenarios import (
     observation_layout,
 )
 from dockingrl.transforms.ekf import STATE_DIM
+from dockingrl.transforms.observations import position_std
 from dockingrl.transforms.repeat import check_action_repeat
-from dockingrl.transforms.uncertainty import position_std
 
 OBS_DIM = 6
 
@@ -89,7 +89,7 @@ class OnboardStep(nn.Module):
     :func:`~dockingrl.scenarios.observation_layout`) adds to what the actor reads: the
     ``current``; the previous ``command`` (zeros on an approach's first step, as
     :class:`~dockingrl.transforms.PreviousAction` gives it); the standard deviations of the
-    filter's ``x`` and ``y`` after this step's update (:class:`~dockingrl.transforms.uncertainty.
+    filter's ``x`` and ``y`` after this step's update (:class:`~dockingrl.transforms.observations.
     FilterStd`). The command returned is clipped to ``config``'s bounds (eq. 3), as the env
     applies it."""
 

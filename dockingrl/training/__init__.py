@@ -13,8 +13,7 @@ from dockingrl.training.options import (
 )
 from dockingrl.training.run_folder import RunInUse, RunLock, code_version
 from dockingrl.training.runs import RESUME_OVERRIDES, train
-from dockingrl.training.stopping import TrainingInterrupted
-from dockingrl.training.trainer import Trainer
+from dockingrl.training.trainer import Trainer, TrainingInterrupted
 
 __all__ = [
     "RESUME_OVERRIDES",

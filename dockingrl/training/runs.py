@@ -13,8 +13,7 @@ from dockingrl.env.checks import available_device
 from dockingrl.io import ArtifactError, file_in_the_way, write_json
 from dockingrl.training.logger import RunLogger
 from dockingrl.training.run_folder import RunLock, default_run_name
-from dockingrl.training.stopping import TrainingInterrupted
-from dockingrl.training.trainer import Trainer
+from dockingrl.training.trainer import Trainer, TrainingInterrupted
 
 #: what a resumed run may change: where and how fast it runs, not what it learns, how long it
 #: goes on (``total_steps``: a finished run can be continued to a larger total), and how it

@@ -4,6 +4,9 @@ log and checkpoint, until the run's ``total_steps`` or time budget."""
 from __future__ import annotations
 
 import math
+import signal
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -26,7 +29,50 @@ from dockingrl.training.logger import RunLogger, plot_run
 from dockingrl.training.options import env_kwargs, stage_at
 from dockingrl.training.run_folder import code_version
 from dockingrl.training.selection import Selection
-from dockingrl.training.stopping import StopRequests, TrainingInterrupted
+
+
+class TrainingInterrupted(Exception):
+    """A run stopped by SIGTERM or SIGINT after checkpointing its last whole batch: nothing
+    trained is lost, and ``--resume`` continues it."""
+
+    def __init__(self, signum: int, frames: int, run_dir: Path) -> None:
+        self.signum, self.frames, self.run_dir = signum, frames, run_dir
+        super().__init__(
+            f"stopped by {signal.Signals(signum).name} at {frames} env steps, checkpoint "
+            f"written; continue with: dockingrl train --resume {run_dir}"
+        )
+
+
+class StopRequests:
+    """While training (main thread only), SIGTERM and SIGINT ask the loop to stop after the
+    current batch and checkpoint; a second signal interrupts at once (``KeyboardInterrupt``)."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict = {}
+
+    def _handler(self, signum, frame) -> None:
+        if self.signum is not None:
+            raise KeyboardInterrupt(f"second {signal.Signals(signum).name}: stopping now")
+        self.signum = signum
+        print(
+            f"\n{signal.Signals(signum).name}: stopping after this batch and its checkpoint "
+            "(again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def install(self) -> None:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handler)
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
 
 
 class Trainer:

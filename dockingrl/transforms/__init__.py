@@ -1,7 +1,6 @@
 """The EKF (pure functions and a TorchRL transform) and the compound observation."""
 
 from dockingrl.transforms.command import PreviousAction
-from dockingrl.transforms.compound import CompoundObservation
 from dockingrl.transforms.ekf import (
     ekf_predict,
     ekf_step,
@@ -14,6 +13,7 @@ from dockingrl.transforms.ekf import (
 )
 from dockingrl.transforms.filtering import EKFTransform
 from dockingrl.transforms.noise import MeasurementNoise, NoiseContext, ProcessNoise
+from dockingrl.transforms.observations import CompoundObservation
 from dockingrl.transforms.repeat import ActionRepeat
 from dockingrl.transforms.shaping import (
     ContactSpeedPenalty,

@@ -1,7 +1,7 @@
 """The TorchRL transform of the paper's EKF (Sec. 3.5, Figure 3), which filters the noisy
 observation. The EKF's noise models ``Q`` and ``R`` are in :mod:`dockingrl.transforms.noise`;
 the compound observation that concatenates raw and filtered is in
-:mod:`dockingrl.transforms.compound`."""
+:mod:`dockingrl.transforms.observations`."""
 
 from __future__ import annotations
 
