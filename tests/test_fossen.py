@@ -317,6 +317,32 @@ def test_the_dynamics_scales_act_on_the_fossen_vehicle():
     assert weak._fossen_hydro.reverse.max().item() == pytest.approx(0.5 * 9.0)
 
 
+def test_the_fossen_vehicle_can_fly_as_identified_beside_a_scaled_paper_model():
+    """M5F: the dynamics scales act on the paper's model only; the Fossen episodes fly as
+    its env without scales does, step for step."""
+    options = dict(mass_scale=(2.0, 2.0), response_time_scale=(3.0, 3.0), noise=False)
+    unscaled = dict(options, scale_fossen=False)
+    runs = {}
+    for name, vehicle, extra in (
+        ("mixed", "mixed", unscaled),
+        ("fossen", "fossen", {"noise": False}),
+        ("scaled", "fossen", options),
+        ("paper", "paper", options),
+    ):
+        env = DockingEnv(64, config=DockingConfig(vehicle=vehicle, **extra), seed=5)
+        env.set_initial_state(torch.tensor([[-28.0, 0.0, 0.0]]).expand(64, 3), torch.zeros(64, 2))
+        runs[name] = (env, env.rollout(20, policy=_fixed_policy, break_when_any_done=False))
+    mixed, run = runs["mixed"]
+    on = mixed.on_fossen[:, 0]
+    assert on.any() and (~on).any()
+    states = {name: r["next", "true_state"] for name, (_, r) in runs.items()}
+    assert torch.equal(states["mixed"][on], states["fossen"][on])
+    assert not torch.allclose(states["scaled"][on], states["fossen"][on])
+    assert torch.equal(states["mixed"][~on], states["paper"][~on])
+    level = level_config("M5F")
+    assert level.vehicle == "mixed" and not level.scale_fossen and level.dynamics_mismatch
+
+
 def test_mixed_episodes_fly_each_vehicle_as_its_own_env_does():
     n = 400
     mixed = DockingEnv(n, config=DockingConfig(vehicle="mixed", noise=False), seed=3)

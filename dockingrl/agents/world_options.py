@@ -39,7 +39,7 @@ class WorldOptions:
     lateral_current_fraction: float = env_field("lateral_current_fraction")
     near_start_fraction: float = env_field("near_start_fraction")
     train_fossen_fraction: float = documented(
-        "training envs of a level that flies either vehicle (M0, M4, M5): the share of their "
+        "training envs of a level that flies either vehicle (M0, M4, M5, M5F): the share of their "
         "episodes flown on the Fossen vehicle; evaluations keep the level's even share (0.5; "
         "not in the paper)",
         default=0.5,

@@ -1,7 +1,8 @@
 """The stress ladder's levels (``dockingrl stress``, docs/realism.md): the paper's task (L0),
 :class:`DockingConfig` realism options at harsh but realistic values (L1-L5), the Fossen vehicle
 (docs/vehicles.md) alone (F0) and with L5's sensors and current (F5), and either vehicle per
-episode alone (M0), with L4's sensors and current (M4) or with all of L5's ranges (M5), for
+episode alone (M0), with L4's sensors and current (M4), with all of L5's ranges (M5) or at L5
+and F5 (M5F: L5's dynamics on the paper's model only), for
 evaluating a policy and for training over the realistic task (``train_level``)."""
 
 from __future__ import annotations
@@ -58,6 +59,16 @@ LEVELS: dict[str, tuple[str, dict]] = {
     "M5": (
         "either vehicle per episode, L5's sensors, current and dynamics",
         {**HARSH_SENSORS, **HARSH_CURRENT, **HARSH_DYNAMICS, "vehicle": "mixed"},
+    ),
+    "M5F": (
+        "either vehicle per episode, the paper's model at L5, the Fossen vehicle at F5",
+        {
+            **HARSH_SENSORS,
+            **HARSH_CURRENT,
+            **HARSH_DYNAMICS,
+            "vehicle": "mixed",
+            "scale_fossen": False,
+        },
     ),
 }
 

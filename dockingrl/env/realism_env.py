@@ -71,13 +71,13 @@ class RealismMixin:
 
     def _make_fossen_vehicle(self) -> None:
         """The Fossen vehicle's coefficients: nominal (what its controller's feedforward knows)
-        and, with the dynamics scales on, this episode's per env."""
+        and, with the dynamics scales on (and ``scale_fossen``), this episode's per env."""
         cfg = self.config
         if cfg.vehicle == "paper":
             return
         self._fossen_nominal = hydrodynamics(SPARUS_II, cfg.dt)
         self._fossen_hydro, self._fossen_gain = self._fossen_nominal, 1.0
-        if cfg.dynamics_mismatch:
+        if cfg.dynamics_mismatch and cfg.scale_fossen:
             scales = self._scales
             self._fossen_hydro = hydrodynamics(SPARUS_II, cfg.dt, scales, cfg.reverse_thrust_loss)
             self._fossen_gain = scales[:, 3]

@@ -132,6 +132,10 @@ class RealismOptions:
     vehicle: str = "paper"
     #: the share of ``"mixed"`` episodes flown on the Fossen vehicle.
     fossen_fraction: float = 0.5
+    #: whether the dynamics scales above apply to the Fossen vehicle as well (off: it flies
+    #: as identified, its own difference from the paper's model being its mismatch, while the
+    #: paper's model takes the scales; the ladder's M5F).
+    scale_fossen: bool = True
 
     def _check_realism(self, fail) -> None:
         """The realism options' checks beyond :data:`REALISM_BOUNDS` (the worst-case PID loop
