@@ -84,7 +84,7 @@ def add_stress_command(sub) -> None:
         "--vehicle",
         choices=list(VEHICLES),
         default="paper",
-        help="the vehicle of the L levels (F0 and F5 fly the Fossen vehicle, M5 either)",
+        help="the vehicle of the L levels (F0 and F5 fly the Fossen vehicle, the M levels either)",
     )
     st.add_argument("--gate", type=POSITIVE, default=None, help="EKF chi-square gate (13.8)")
     st.add_argument(
