@@ -322,20 +322,19 @@ def test_the_fossen_vehicle_can_fly_as_identified_beside_a_scaled_paper_model():
     its env without scales does, step for step."""
     options = dict(mass_scale=(2.0, 2.0), response_time_scale=(3.0, 3.0), noise=False)
     unscaled = dict(options, scale_fossen=False)
-    runs = {}
-    for name, vehicle, extra in (
-        ("mixed", "mixed", unscaled),
-        ("fossen", "fossen", {"noise": False}),
-        ("scaled", "fossen", options),
-        ("paper", "paper", options),
-    ):
-        env = DockingEnv(64, config=DockingConfig(vehicle=vehicle, **extra), seed=5)
+    envs = {
+        "mixed": DockingEnv(64, config=DockingConfig(vehicle="mixed", **unscaled), seed=5),
+        "fossen": DockingEnv(64, config=DockingConfig(vehicle="fossen", noise=False), seed=5),
+        "scaled": DockingEnv(64, config=DockingConfig(vehicle="fossen", **options), seed=5),
+        "paper": DockingEnv(64, config=DockingConfig(**options), seed=5),
+    }
+    states = {}
+    for name, env in envs.items():
         env.set_initial_state(torch.tensor([[-28.0, 0.0, 0.0]]).expand(64, 3), torch.zeros(64, 2))
-        runs[name] = (env, env.rollout(20, policy=_fixed_policy, break_when_any_done=False))
-    mixed, run = runs["mixed"]
-    on = mixed.on_fossen[:, 0]
+        run = env.rollout(20, policy=_fixed_policy, break_when_any_done=False)
+        states[name] = run["next", "true_state"]
+    on = envs["mixed"].on_fossen[:, 0]
     assert on.any() and (~on).any()
-    states = {name: r["next", "true_state"] for name, (_, r) in runs.items()}
     assert torch.equal(states["mixed"][on], states["fossen"][on])
     assert not torch.allclose(states["scaled"][on], states["fossen"][on])
     assert torch.equal(states["mixed"][~on], states["paper"][~on])

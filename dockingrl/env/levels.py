@@ -38,6 +38,8 @@ HARSH_DYNAMICS = {
     "reverse_thrust_loss": 0.4,
     "turning_surge_loss": 0.5,
 }
+#: either vehicle per episode with all of L5's ranges (M5; M5F keeps the Fossen vehicle unscaled)
+MIXED_L5 = {**HARSH_SENSORS, **HARSH_CURRENT, **HARSH_DYNAMICS, "vehicle": "mixed"}
 #: the ladder: name -> (what it is, the DockingConfig options it sets)
 LEVELS: dict[str, tuple[str, dict]] = {
     "L0": ("the paper's task", {}),
@@ -56,19 +58,10 @@ LEVELS: dict[str, tuple[str, dict]] = {
         "either vehicle per episode, L4's sensors and current",
         {**HARSH_SENSORS, **HARSH_CURRENT, "vehicle": "mixed"},
     ),
-    "M5": (
-        "either vehicle per episode, L5's sensors, current and dynamics",
-        {**HARSH_SENSORS, **HARSH_CURRENT, **HARSH_DYNAMICS, "vehicle": "mixed"},
-    ),
+    "M5": ("either vehicle per episode, L5's sensors, current and dynamics", MIXED_L5),
     "M5F": (
         "either vehicle per episode, the paper's model at L5, the Fossen vehicle at F5",
-        {
-            **HARSH_SENSORS,
-            **HARSH_CURRENT,
-            **HARSH_DYNAMICS,
-            "vehicle": "mixed",
-            "scale_fossen": False,
-        },
+        {**MIXED_L5, "scale_fossen": False},
     ),
 }
 
