@@ -412,6 +412,10 @@ def test_bad_vehicle_options_are_refused_in_one_line():
         DockingConfig(vehicle=3)
     with pytest.raises(ValueError, match="fossen_fraction"):
         DockingConfig(vehicle="mixed", fossen_fraction=1.5)
+    with pytest.raises(ValueError, match="DockingConfig.scale_fossen: False only spares"):
+        DockingConfig(scale_fossen=False, mass_scale=(0.7, 1.3))  # the paper's model only
+    with pytest.raises(ValueError, match="DockingConfig.scale_fossen: False only spares"):
+        DockingConfig(vehicle="fossen", scale_fossen=False)  # no dynamics scale to spare it
     with pytest.raises(ValueError, match="FossenVehicle.mass: must be > 0"):
         FossenVehicle(mass=0.0)
     with pytest.raises(ValueError, match="FossenVehicle.diameter"):

@@ -134,7 +134,8 @@ class RealismOptions:
     fossen_fraction: float = 0.5
     #: whether the dynamics scales above apply to the Fossen vehicle as well (off: it flies
     #: as identified, its own difference from the paper's model being its mismatch, while the
-    #: paper's model takes the scales; the ladder's M5F).
+    #: paper's model takes the scales; the ladder's M5F). False needs the Fossen vehicle
+    #: (``"fossen"`` or ``"mixed"``) and a dynamics scale on.
     scale_fossen: bool = True
 
     def _check_realism(self, fail) -> None:
@@ -167,6 +168,12 @@ class RealismOptions:
                 fail(name, "empty range: needs low <= high")
         if self.vehicle not in VEHICLES:
             fail("vehicle", f"unknown vehicle; valid: {', '.join(VEHICLES)}")
+        if not self.scale_fossen and (self.vehicle == "paper" or not self.dynamics_mismatch):
+            fail(
+                "scale_fossen",
+                "False only spares the Fossen vehicle the dynamics scales: it needs vehicle "
+                "'fossen' or 'mixed' and a dynamics scale on",
+            )
 
     def _steps(self, seconds: float) -> int:
         return max(1, round(seconds / self.dt))

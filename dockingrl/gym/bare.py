@@ -54,7 +54,7 @@ PAPER_TASK_ONLY = (
 def gym_task_problem(config: DockingConfig) -> str | None:
     """Why a Gymnasium env cannot step ``config`` (``None`` if it can): the paper's task on
     the paper's model or the Fossen vehicle (docs/vehicles.md), no other realism option."""
-    return PAPER_TASK_ONLY if config.replace(vehicle="paper").realistic else None
+    return PAPER_TASK_ONLY if config.replace(vehicle="paper", scale_fossen=True).realistic else None
 
 
 def reading_bounds() -> tuple[np.ndarray, np.ndarray]:
