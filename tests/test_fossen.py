@@ -287,7 +287,8 @@ def test_the_realism_levels_fly_the_fossen_vehicle(level):
     env = DockingEnv(32, config=config, seed=1)
     rollout = env.rollout(200, break_when_any_done=False)
     assert torch.isfinite(rollout["next", "observation"]).all()
-    plain = DockingEnv(32, config=config.replace(vehicle="paper"), seed=1).rollout(
+    paper = config.replace(vehicle="paper", scale_fossen=True)  # M5F spares the Fossen vehicle
+    plain = DockingEnv(32, config=paper, seed=1).rollout(
         200, policy=_fixed_policy, break_when_any_done=False
     )
     flown = DockingEnv(32, config=config, seed=1).rollout(
