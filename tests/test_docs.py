@@ -288,3 +288,16 @@ def test_a_user_page_is_short(page):
 def test_the_research_notes_are_under_docs_research():
     assert (ROOT / "docs" / "research" / "README.md").is_file()
     assert not (ROOT / "docs" / "research_notes.md").exists()
+
+
+def test_the_robustness_page_quotes_the_current_lists_of_recipes_levels_and_grids():
+    """docs/robustness.md quotes the refusals of an unknown recipe, level and grid, whose lists
+    grow with the package."""
+    from dockingrl.env.levels import LEVELS
+    from dockingrl.grid.files import grid_names
+    from dockingrl.recipes import recipe_names
+
+    text = (ROOT / "docs" / "robustness.md").read_text()
+    assert f"neither a recipe name ({', '.join(recipe_names())}) nor a YAML file" in text
+    assert f"unknown level 'L9'; valid: {', '.join(LEVELS)}`" in text
+    assert f"neither a grid name ({', '.join(grid_names())}) nor a file" in text
