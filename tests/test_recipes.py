@@ -98,7 +98,7 @@ def test_recommended_recipes_share_the_environment_choices():
     assert {k: sac[k] for k in shared} == {k: td3[k] for k in shared}
     assert {k: sac[k] for k in shared} == {k: robust[k] for k in shared}
     cfg = load_recipe("sac-robust").make_config()
-    assert (cfg.train_curriculum, cfg.train_level, cfg.scenario) == ("L0", "M5", "filtered")
+    assert (cfg.train_curriculum, cfg.train_level, cfg.scenario) == ("L0", "M5F", "filtered")
     assert load_recipe("ppo").make_config().threads == 2  # the main job uses both cores
 
 
@@ -145,12 +145,12 @@ def test_a_recipe_file_starts_from_its_base(tmp_path, monkeypatch):
     mine = tmp_path / "mine.yaml"
     mine.write_text("base: sac-robust\nconfig:\n  lr: 0.001\n")
     cfg = load_recipe(mine).make_config()
-    assert (cfg.lr, cfg.train_level, cfg.action_repeat, cfg.recipe) == (0.001, "M5", 4, "mine")
+    assert (cfg.lr, cfg.train_level, cfg.action_repeat, cfg.recipe) == (0.001, "M5F", 4, "mine")
     (tmp_path / "sub").mkdir()  # a base file is read beside the recipe, wherever it runs
     (tmp_path / "sub" / "second.yaml").write_text("base: ../mine.yaml\nconfig:\n  gamma: 0.9\n")
     monkeypatch.chdir("/")
     cfg = load_recipe(tmp_path / "sub" / "second.yaml").make_config()
-    assert (cfg.lr, cfg.gamma, cfg.train_level) == (0.001, 0.9, "M5")
+    assert (cfg.lr, cfg.gamma, cfg.train_level) == (0.001, 0.9, "M5F")
     loop = tmp_path / "loop.yaml"
     loop.write_text(f"base: {loop}\n")
     with pytest.raises(ValueError, match="nest deeper than 8"):
