@@ -279,6 +279,39 @@ def test_the_command_line_help_loads_no_torch():
     assert out.stdout.split()[-1] == "False", out.stderr
 
 
+def test_each_command_group_adds_the_subcommands_it_names():
+    """The table that lets a command line import only its own group lists each group's
+    subcommands exactly as the group's module adds them."""
+    import argparse
+    import importlib
+
+    from dockingrl.cli import COMMAND_GROUPS, build_parser
+
+    for module, adder, names in COMMAND_GROUPS:
+        sub = argparse.ArgumentParser().add_subparsers()
+        getattr(importlib.import_module(f"dockingrl.cli.{module}"), adder)(sub)
+        assert tuple(sub.choices) == names, module
+    every = build_parser()._subparsers._group_actions[0].choices
+    assert tuple(every) == tuple(n for *_, names in COMMAND_GROUPS for n in names)
+    only = build_parser("stress")._subparsers._group_actions[0].choices
+    assert tuple(only) == ("stress",)
+
+
+def test_a_command_line_imports_only_its_own_command_group():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\nfrom dockingrl.cli import main\n"
+        "try:\n    main(['recipes'])\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('dockingrl.cli.')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines()[-1] == "['dockingrl.cli.arguments', 'dockingrl.cli.train']", (
+        out.stdout + out.stderr
+    )
+
+
 def test_the_torch_free_copies_of_the_filter_options_agree():
     from dockingrl.cli.filter import RANGE_NOISE_FROM
     from dockingrl.filter_learning.options import LEARN_R

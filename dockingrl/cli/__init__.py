@@ -4,26 +4,39 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 import traceback
 from pathlib import Path
 
 from dockingrl.cli.arguments import Parser, UsageError
-from dockingrl.cli.evaluate import add_evaluation_commands
-from dockingrl.cli.filter import add_filter_commands
-from dockingrl.cli.grid import add_grid_commands
-from dockingrl.cli.onboard import add_onboard_commands
-from dockingrl.cli.stress import add_stress_command
-from dockingrl.cli.train import add_training_commands
-from dockingrl.cli.upgrade import add_upgrade_command
 from dockingrl.provenance import set_command_line
 
 DEBUG_HELP = "on an error, show its traceback instead of one line"
 
+#: the groups of subcommands, in ``dockingrl --help``'s order: each group's module, the function
+#: of it that adds the group's subcommands, and their names. A command line imports only its own
+#: command's group; ``dockingrl --help`` and an unknown command, all of them.
+COMMAND_GROUPS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("evaluate", "add_evaluation_commands", ("eval", "export")),
+    ("train", "add_training_commands", ("train", "recipes")),
+    ("grid", "add_grid_commands", ("grid", "table")),
+    (
+        "filter",
+        "add_filter_commands",
+        ("filter-figure", "learn-filter", "filter-ablation", "ppo-filter-comparison"),
+    ),
+    ("stress", "add_stress_command", ("stress",)),
+    ("onboard", "add_onboard_commands", ("record-log", "replay")),
+    ("upgrade", "add_upgrade_command", ("upgrade",)),
+)
 
-def build_parser() -> argparse.ArgumentParser:
-    """The parser of ``dockingrl`` and all its subcommands."""
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``dockingrl`` with the subcommands of ``command``'s group, or with all of
+    them when ``command`` is None or no subcommand's name."""
+    groups = [g for g in COMMAND_GROUPS if command in g[2]] or COMMAND_GROUPS
     parser = Parser(
         prog="dockingrl",
         description="AUV docking with deep RL: evaluation and training. An error is one line "
@@ -31,13 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
-    add_evaluation_commands(sub)
-    add_training_commands(sub)
-    add_grid_commands(sub)
-    add_filter_commands(sub)
-    add_stress_command(sub)
-    add_onboard_commands(sub)
-    add_upgrade_command(sub)
+    for module, adder, _ in groups:
+        getattr(importlib.import_module(f"dockingrl.cli.{module}"), adder)(sub)
     for command in sub.choices.values():  # --debug also after the command's name
         command.add_argument(
             "--debug", action="store_true", default=argparse.SUPPRESS, help=DEBUG_HELP
@@ -94,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     set_command_line(argv)
     debug, command = "--debug" in argv, None
     try:
-        args, extra = build_parser().parse_known_args(argv)
+        first_word = next((word for word in argv if not word.startswith("-")), None)
+        args, extra = build_parser(first_word).parse_known_args(argv)
         debug, command = args.debug, args.command
         if extra:
             raise UsageError(f"unrecognized arguments: {' '.join(extra)}")
