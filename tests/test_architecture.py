@@ -266,17 +266,24 @@ def test_import_dockingrl_loads_no_torch_and_exports_the_public_api():
     assert out.stdout.split() == ["False", "True", "True"], out.stdout + out.stderr
 
 
-def test_the_command_line_help_loads_no_torch():
+def _after_command_line(argv: list[str], expression: str) -> tuple[str, str]:
+    """The last line printed by a fresh interpreter that runs ``dockingrl`` with ``argv`` and
+    then prints ``expression`` (``sys`` imported), and everything else it wrote."""
     import subprocess
     import sys
 
     code = (
         "import sys\nfrom dockingrl.cli import main\n"
-        "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
-        "print('torch' in sys.modules)"
+        f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
+        f"print({expression})"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.split()[-1] == "False", out.stderr
+    return out.stdout.splitlines()[-1], out.stdout + out.stderr
+
+
+def test_the_command_line_help_loads_no_torch():
+    last, output = _after_command_line(["--help"], "'torch' in sys.modules")
+    assert last == "False", output
 
 
 def test_each_command_group_adds_the_subcommands_it_names():
@@ -298,18 +305,10 @@ def test_each_command_group_adds_the_subcommands_it_names():
 
 
 def test_a_command_line_imports_only_its_own_command_group():
-    import subprocess
-    import sys
-
-    code = (
-        "import sys\nfrom dockingrl.cli import main\n"
-        "try:\n    main(['recipes'])\nexcept SystemExit:\n    pass\n"
-        "print(sorted(m for m in sys.modules if m.startswith('dockingrl.cli.')))"
+    last, output = _after_command_line(
+        ["recipes"], "sorted(m for m in sys.modules if m.startswith('dockingrl.cli.'))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.splitlines()[-1] == "['dockingrl.cli.arguments', 'dockingrl.cli.train']", (
-        out.stdout + out.stderr
-    )
+    assert last == "['dockingrl.cli.arguments', 'dockingrl.cli.train']", output
 
 
 def test_the_torch_free_copies_of_the_filter_options_agree():

@@ -46,8 +46,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for module, adder, _ in groups:
         getattr(importlib.import_module(f"dockingrl.cli.{module}"), adder)(sub)
-    for command in sub.choices.values():  # --debug also after the command's name
-        command.add_argument(
+    for subparser in sub.choices.values():  # --debug also after the command's name
+        subparser.add_argument(
             "--debug", action="store_true", default=argparse.SUPPRESS, help=DEBUG_HELP
         )
     return parser
