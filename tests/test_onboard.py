@@ -151,6 +151,39 @@ def test_onboard_policy_refuses_bad_readings():
         OnboardPolicy(random_actor("sac", "noise"), "noise", filter_params="x.pt")
 
 
+def test_a_loaded_actor_is_refused_by_an_env_that_does_not_give_its_observation(tmp_path):
+    """The Python API checks a saved policy against the env it is given, as the command line
+    does: a ``compound`` policy in a ``filtered`` or ``noise`` env, or without the options it
+    was trained with, is refused in one line, never run on the wrong numbers."""
+    from dockingrl import evaluate
+    from dockingrl.agents.saving import load_policy
+    from dockingrl.io import ArtifactError
+
+    actor, info = load_policy(PPO_COMPOUND_POLICY)
+    for scenario in ("filtered", "noise"):
+        with pytest.raises(ArtifactError, match="was trained on scenario 'compound'") as said:
+            evaluate(actor, scenario, 2, **info["env_options"])
+        assert "\n" not in str(said.value)
+        with pytest.raises(ArtifactError, match="but the env gives scenario"):
+            OnboardPolicy(actor, scenario)
+    assert 0 <= evaluate(actor, "compound", 2, **info["env_options"])["success_rate"] <= 100
+    with pytest.raises(TypeError, match="config must be a DockingConfig, got dict"):
+        OnboardPolicy.from_file(PPO_COMPOUND_POLICY, config={"dt": 0.1})
+    with pytest.raises(ValueError, match="not a torch device: 'bogus'"):
+        load_policy(PPO_COMPOUND_POLICY, device="bogus")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="CUDA is not available"):
+            load_policy(PPO_COMPOUND_POLICY, device="cuda")
+
+
+@pytest.mark.parametrize("bad", [float("nan"), 0.0, -50.0, float("inf")])
+def test_a_filter_response_rate_that_is_not_a_positive_number_is_refused(bad):
+    with pytest.raises(ValueError, match="k_v must be a positive number"):
+        make_env("filtered", 2, ekf_kwargs={"k_v": bad})
+    with pytest.raises(ValueError, match="k_w must be a positive number"):
+        OnboardPolicy(random_actor("sac", "filtered"), "filtered", k_w=bad)
+
+
 def test_onboard_policy_never_returns_a_non_finite_command():
     policy = OnboardPolicy(random_actor("sac", "compound"), "compound")
     z, current = torch.tensor([20.0, 0.1, 0, 0.5, 0, 0]), torch.zeros(2)

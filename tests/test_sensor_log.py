@@ -135,6 +135,15 @@ def test_the_replay_and_record_commands(tmp_path, capsys):
         ),
         ("# dockingrl sensor log v1\nt,sensor,a,b\n0,usbl,1\n", "line 3: 4 fields expected"),
         ("# dockingrl sensor log v1\nt,sensor,a,b\n", "no messages"),
+        (
+            "# dockingrl sensor log v1\nt,sensor,a,b\n0,usbl,1,2\n1e9,usbl,1,2\n",
+            "line 4: .* a silence over 60 s",
+        ),
+        (  # a log in milliseconds: every gap under 60, its span far over an hour
+            "# dockingrl sensor log v1\nt,sensor,a,b\n"
+            + "".join(f"{50 * k},imu,1,2\n" for k in range(80)),
+            "line 76: .* at most 3600 s",
+        ),
     ],
 )
 def test_a_bad_log_is_refused_in_one_line(tmp_path, text, message):

@@ -2,6 +2,7 @@
 every accepted config stays finite; ``check_finite`` names where a NaN appears."""
 
 import dataclasses
+import json
 import math
 
 import gymnasium
@@ -207,6 +208,27 @@ def test_train_config_noise_scales_are_bounded(field, value, why):
     message = refusal(make_config, "ppo", **{field: value})
     assert message.startswith(f"PPOConfig.{field}: {why}")
     make_config("ppo", **{field: 4.0})
+
+
+def test_a_train_config_of_a_wrong_type_is_refused_before_training():
+    """A field of the wrong type is refused when the config is made, not when the trained
+    policy is saved; ``train`` takes a config and nothing else."""
+    said = refusal(load_recipe("sac").make_config, total_steps=200.0)
+    assert said == "sac option total_steps: expected <class 'int'>, got 200.0"
+    said = refusal(make_config, "ppo", lr="0.1")
+    assert said == "ppo option lr: expected <class 'float'>, got '0.1'"
+    for bad in (None, {"algo": "ppo"}):
+        said = refusal(dockingrl.train, bad, kind=TypeError)
+        assert said.startswith("train takes a TrainConfig") and type(bad).__name__ in said
+
+
+def test_a_resumed_run_with_a_bad_saved_value_names_its_config_file(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    cfg = make_config("ppo").to_dict()
+    (run / "config.json").write_text(json.dumps({**cfg, "lr": -1.0}))
+    said = refusal(dockingrl.train, None, resume=run)
+    assert said.startswith(f"{run / 'config.json'}: PPOConfig.lr")
 
 
 # -- DockingEnv ------------------------------------------------------------------------------

@@ -75,6 +75,8 @@ class TrainConfig(*TRAIN_GROUPS):
 
     def _check_config(self) -> None:
         """The checks of :meth:`validate`; each config class extends them."""
+        options = {f.name: getattr(self, f.name) for f in fields(self)}
+        check_types(self.algo, {k: v for k, v in options.items() if k not in _NOT_OPTIONS})
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not (value == value and abs(value) != float("inf")):

@@ -10,6 +10,7 @@ import torch
 from torchrl.data import Bounded
 
 from dockingrl.agents.world_options import PAPER_RESPONSE_RATE
+from dockingrl.env.checks import available_device
 from dockingrl.io import (
     ArtifactError,
     first_line,
@@ -231,6 +232,7 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     actor acts deterministically under
     ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate` sets). Raises
     :class:`~dockingrl.io.ArtifactError` for a missing, damaged, crafted or older file."""
+    available_device(str(device))
     payload = read_policy(path)
     actor = _rebuild(path, payload)
     info = {k: payload[k] for k in ("algo", "scenario", "config", "metadata")}
@@ -238,7 +240,26 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     info["observation_layout"] = payload["observation_layout"]
     info["path"] = str(path)
     info["env_options"] = pipeline_options(payload["config"])
+    # what :func:`check_actor_fits` checks an env against
+    actor.trained_on = {"path": str(path), "observation_layout": payload["observation_layout"]}
     return actor.to(device).eval(), info
+
+
+def check_actor_fits(actor, scenario: str, obs_dim: int, options: Mapping) -> None:
+    """For an actor from :func:`load_policy`: check (:func:`check_layout`) that the env of
+    ``scenario`` built with the :func:`~dockingrl.make_env` ``options``, whose observation has
+    ``obs_dim`` numbers, gives it the observation it was trained on. Any other policy (the
+    managed surge controller, an actor built in code) passes unchecked."""
+    trained = getattr(actor, "trained_on", None)
+    if trained is None:
+        return
+    check_layout(
+        trained,
+        scenario,
+        obs_dim,
+        **layout_options(options),
+        action_repeat=options.get("action_repeat", 1),
+    )
 
 
 def _rebuild(path, payload: dict) -> torch.nn.Module:

@@ -88,6 +88,22 @@ def output_folder(text: str) -> str:
     return text
 
 
+def output_file(text: str) -> str:
+    """An argparse type: a file to write, refused up front (not after the work) when it is a
+    folder or a folder above it is a file."""
+    from pathlib import Path
+
+    from dockingrl.io import file_in_the_way
+
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: a folder; give a file's path")
+    blocker = file_in_the_way(path.parent)
+    if blocker is not None:
+        raise argparse.ArgumentTypeError(f"{text}: cannot be written ({blocker} is a file)")
+    return text
+
+
 def existing_file(text: str) -> str:
     """An argparse type: a file to read, refused up front when it is missing or a folder."""
     from pathlib import Path

@@ -4,9 +4,8 @@ the onboard loop run over a log (:mod:`dockingrl.onboard.sensor_log`, docs/onboa
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from dockingrl.cli.arguments import UsageError
+from dockingrl.cli.arguments import SEED, UsageError, existing_file, output_file
 
 
 def _policy_and_config(args: argparse.Namespace):
@@ -67,8 +66,8 @@ def add_onboard_commands(sub) -> None:
         parents=[common],
         help="fly one simulated approach and write the sensor log the vehicle received",
     )
-    rec.add_argument("--seed", type=int, default=0, help="the approach's seed")
-    rec.add_argument("--out", type=Path, required=True, help="the log's file (.csv)")
+    rec.add_argument("--seed", type=SEED, default=0, help="the approach's seed")
+    rec.add_argument("--out", type=output_file, required=True, help="the log's file (.csv)")
     rec.set_defaults(func=cmd_record_log)
     rep = sub.add_parser(
         "replay",
@@ -76,6 +75,8 @@ def add_onboard_commands(sub) -> None:
         help="run the onboard loop over a sensor log: the commands, the filter's estimate and "
         "its uncertainty",
     )
-    rep.add_argument("--log", required=True, help="a sensor log (docs/onboard.md)")
-    rep.add_argument("--out", type=Path, required=True, help="the commands' file (.csv)")
+    rep.add_argument(
+        "--log", type=existing_file, required=True, help="a sensor log (docs/onboard.md)"
+    )
+    rep.add_argument("--out", type=output_file, required=True, help="the commands' file (.csv)")
     rep.set_defaults(func=cmd_replay)

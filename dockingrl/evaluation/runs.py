@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
+from dockingrl.agents.saving import check_actor_fits
 from dockingrl.evaluation.episodes import Policy, base_env, episode_record, run_episodes
 from dockingrl.evaluation.machine import describe_machine
 from dockingrl.evaluation.metrics import summarize
@@ -57,6 +58,8 @@ def evaluate(
         if num_episodes < 1:
             raise ValueError(f"num_episodes must be >= 1, got {num_episodes}")
         env = make_env(scenario, num_episodes, seed=seed, device=device, **env_kwargs)
+        obs_dim = env.observation_spec["observation"].shape[-1]
+        check_actor_fits(policy, scenario, obs_dim, env_kwargs)
         name = scenario
     else:
         env, name = scenario, "custom"

@@ -30,6 +30,7 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from dockingrl.env import DockingConfig
+from dockingrl.env.config import config_or_default
 from dockingrl.env.dynamics import clip_action
 from dockingrl.env.realism import SENSORS
 from dockingrl.scenarios import (
@@ -104,8 +105,11 @@ class OnboardStep(nn.Module):
         **observe: bool,
     ) -> None:
         super().__init__()
+        trained = getattr(actor, "trained_on", None)  # an actor from load_policy
+        if trained is not None:
+            check_env_layout(trained, scenario, {**observe, "action_repeat": action_repeat})
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
-        config = config or DockingConfig()
+        config = config_or_default(config)
         self.register_buffer("action_low", torch.tensor(config.action_low))
         self.register_buffer("action_high", torch.tensor(config.action_high))
         self.layout = observation_layout(scenario, **observe)
@@ -222,7 +226,9 @@ class OnboardPolicy(nn.Module):
         ):
             if on and not self.uses_filter:
                 raise ValueError(f"scenario {scenario!r} has no filter: {name} does not apply")
-        config = config or DockingConfig()
+        config = config_or_default(config)
+        observe = {"observe_current": observe_current, "observe_command": observe_command}
+        observe["observe_filter_std"] = observe_filter_std
         ekf = None
         if self.uses_filter:
             ekf = make_filter(
@@ -235,8 +241,6 @@ class OnboardPolicy(nn.Module):
             )
         if filter_params is not None:
             ekf.load_filter_params(filter_params)
-        observe = {"observe_current": observe_current, "observe_command": observe_command}
-        observe["observe_filter_std"] = observe_filter_std
         self.step = OnboardStep(
             actor, scenario, ekf, action_repeat=action_repeat, config=config, **observe
         )
@@ -263,7 +267,6 @@ class OnboardPolicy(nn.Module):
 
         actor, info = load_policy(path, device=device)
         options = pipeline_options(info["config"])
-        check_env_layout(info, info["scenario"], options)
         if filter_params is None:
             params = training_filter(info)
         else:

@@ -43,6 +43,12 @@ ENTRIES = {
 }
 #: a message counts as arrived by a tick when it is at most this late (float rounding of t)
 _TICK_SLACK = 1e-6
+#: s, the longest silence between two messages of a log: a vehicle silent longer than this has
+#: no approach to replay (an episode of the paper's task lasts 120 s)
+MAX_GAP_S = 60.0
+#: s, the longest log a replay takes (18,000 control ticks): longer, its times are likely not
+#: in seconds
+MAX_SPAN_S = 3600.0
 
 
 @dataclass
@@ -86,7 +92,8 @@ def write_log(log: SensorLog, path: str | Path) -> Path:
 def read_log(path: str | Path) -> SensorLog:
     """Read a log; ``ValueError`` (one line, naming the file and row) for anything else: a
     missing file, another header, an unknown sensor, a number that is not one or not finite,
-    times that go back."""
+    times that go back, a silence over :data:`MAX_GAP_S` or a log longer than
+    :data:`MAX_SPAN_S`."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -98,7 +105,7 @@ def read_log(path: str | Path) -> SensorLog:
     reader = csv.reader(lines[1:])
     if next(reader, None) != list(COLUMNS):
         raise ValueError(f"sensor log {path}: line 2 must be the columns {','.join(COLUMNS)}")
-    log, last = SensorLog(), -math.inf
+    log, first, last = SensorLog(), math.inf, -math.inf
     for number, row in enumerate(reader, start=3):
         where = f"sensor log {path}, line {number}"
         if len(row) != len(COLUMNS):
@@ -114,6 +121,17 @@ def read_log(path: str | Path) -> SensorLog:
             raise ValueError(f"{where}: t, a and b must be finite, got {row}")
         if numbers[0] < last:
             raise ValueError(f"{where}: t {numbers[0]} is before the previous row's {last}")
+        if math.isfinite(last) and numbers[0] - last > MAX_GAP_S:
+            raise ValueError(
+                f"{where}: t {numbers[0]} is {numbers[0] - last:g} s after the previous row's "
+                f"{last}, a silence over {MAX_GAP_S:g} s (t is in seconds)"
+            )
+        if numbers[0] - first > MAX_SPAN_S:
+            raise ValueError(
+                f"{where}: t {numbers[0]} is {numbers[0] - first:g} s after the first row's "
+                f"{first}; a replay takes at most {MAX_SPAN_S:g} s (t is in seconds)"
+            )
+        first = min(first, numbers[0])
         last = numbers[0]
         log.add(numbers[0], kind, numbers[1], numbers[2])
     if not any(log.times[kind] for kind in MESSAGES):

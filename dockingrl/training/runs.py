@@ -79,8 +79,16 @@ def train(
                 f"total_steps ({saved['total_steps']}), which therefore cannot change"
             )
         cfg = cls(**{**saved, **overrides})
-        cfg.validate()
+        try:
+            cfg.validate()
+        except ValueError as exc:
+            raise ValueError(f"{run_dir / 'config.json'}: {exc}") from None
         available_device(cfg.device)
+    elif not isinstance(cfg, TrainConfig):
+        raise TypeError(
+            f"train takes a TrainConfig (load_recipe(NAME).make_config() or make_config(ALGO)), "
+            f"not {type(cfg).__name__}"
+        )
     elif overrides:
         raise ValueError("overrides apply to a resumed run only; set them in cfg")
     else:

@@ -6,6 +6,7 @@ the compound observation that concatenates raw and filtered is in
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Self
@@ -134,8 +135,13 @@ class EKFTransform(NoiseParameters, Transform):
         out_key: str = "filtered_observation",
         compile: bool = False,
     ) -> None:
-        if not (dt > 0 and math.isfinite(dt)):
-            raise ValueError(f"dt must be a positive number, got {dt}")
+        for name, value in (("dt", dt), ("k_v", k_v), ("k_w", k_w)):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, numbers.Real)
+                or not 0 < value < math.inf
+            ):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
         super().__init__(in_keys=[observation_key, action_key, current_key], out_keys=[out_key])
         self.observation_key, self.action_key, self.current_key = (
             observation_key,
