@@ -303,8 +303,8 @@ def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, ca
         assert f"argument --out: {afile / 'log.csv'}: cannot be written ({afile} is a file)" in line
     said = fails(capsys, ["record-log", "--policy", "p.pt", "--out", "x.csv", "--seed", "-1"], 2)
     assert "argument --seed: must be an integer >= 0" in said
-    said = fails(capsys, ["replay", "--policy", "p.pt", "--log", "nolog.csv", "--out", "x.csv"], 2)
-    assert "argument --log: nolog.csv: no such file" in said
+    said = fails(capsys, ["replay", "--policy", "p.pt", "--log", "nolog.csv", "--out", "x.csv"], 1)
+    assert "sensor log nolog.csv: cannot read it" in said
 
 
 @pytest.mark.parametrize(

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from dockingrl.cli.arguments import SEED, UsageError, existing_file, output_file
+from dockingrl.cli.arguments import SEED, UsageError, output_file
 
 
 def _policy_and_config(args: argparse.Namespace):
@@ -38,8 +38,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     """``dockingrl replay``: the commands the onboard loop sends over a log."""
     from dockingrl.onboard.sensor_log import read_log, replay, write_replay
 
+    log = read_log(args.log)  # a bad log is refused before the policy is loaded
     policy, config = _policy_and_config(args)
-    result = replay(policy, read_log(args.log), config.dt)
+    result = replay(policy, log, config.dt)
     path = write_replay(result, args.out)
     line = f"wrote {path}: {len(result.times)} commands"
     if result.logged_commands is not None:
@@ -75,8 +76,6 @@ def add_onboard_commands(sub) -> None:
         help="run the onboard loop over a sensor log: the commands, the filter's estimate and "
         "its uncertainty",
     )
-    rep.add_argument(
-        "--log", type=existing_file, required=True, help="a sensor log (docs/onboard.md)"
-    )
+    rep.add_argument("--log", required=True, help="a sensor log (docs/onboard.md)")
     rep.add_argument("--out", type=output_file, required=True, help="the commands' file (.csv)")
     rep.set_defaults(func=cmd_replay)
