@@ -326,11 +326,13 @@ def test_a_run_that_cannot_start_leaves_no_folder_in_the_way_of_a_retry(tmp_path
     junk = tmp_path / "junk.pt"
     junk.write_text("not a filter")
     argv = ["train", "--algo", "sac", "--scenario", "filtered", "--out", str(tmp_path)]
-    fails(capsys, [*argv, "--run-name", "fp", "--filter-params", str(junk)], 1)
+    line = fails(capsys, [*argv, "--run-name", "fp", "--filter-params", str(junk)], 1)
+    assert "junk.pt" in line and "unexpected" not in line
     assert not (tmp_path / "fp").exists()
     (tmp_path / "kept").mkdir()  # a folder that was there before keeps what it held
     (tmp_path / "kept" / "notes.txt").write_text("mine")
-    fails(capsys, [*argv, "--run-name", "kept", "--filter-params", str(junk)], 1)
+    line = fails(capsys, [*argv, "--run-name", "kept", "--filter-params", str(junk)], 1)
+    assert "junk.pt" in line and "unexpected" not in line
     assert sorted(p.name for p in (tmp_path / "kept").iterdir()) == ["notes.txt", "run.lock"]
 
 

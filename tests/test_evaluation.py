@@ -198,13 +198,15 @@ def test_cli_eval_writes_a_results_folder(tmp_path, capsys):
         assert (out / name).stat().st_size > 0, name
 
 
-def test_bad_evaluation_arguments():
+def test_bad_evaluation_arguments(capsys):
     with pytest.raises(ValueError, match="num_episodes"):
         evaluate(ManagedSurgePolicy(), "noise", 0)
     with pytest.raises(ValueError, match="unknown scenario"):
         evaluate(ManagedSurgePolicy(), "calm", 5)
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as exit_:
         cli_main(["eval", "--policy", "/nonexistent/policy.pt", "--quiet"])
+    assert exit_.value.code == 1
+    assert "neither 'managed_surge' nor a file" in capsys.readouterr().err
 
 
 def test_stochastic_evaluation_samples_the_policy_and_says_so():

@@ -97,7 +97,9 @@ def test_learned_parameters_round_trip_through_the_cli(tmp_path):
     assert (out / "curves.csv").stat().st_size > 0
 
 
-def test_learn_filter_on_a_stress_level_fits_on_its_asynchronous_sensors(tmp_path, monkeypatch):
+def test_learn_filter_on_a_stress_level_fits_on_its_asynchronous_sensors(
+    tmp_path, monkeypatch, capsys
+):
     from dockingrl import filter_experiments
 
     recorded = []
@@ -115,8 +117,11 @@ def test_learn_filter_on_a_stress_level_fits_on_its_asynchronous_sensors(tmp_pat
     assert report["level"] == "L1"
     assert recorded and all(c.usbl_period == 1.0 and c.sensor_timing for c in recorded)
     assert report["held_out_learned"]["rmse_position_m"] > 0
-    with pytest.raises(SystemExit):
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
         cli_main(["learn-filter", "--level", "L9", "--out", str(out)])
+    assert exit_.value.code == 2
+    assert "argument --level: invalid choice: 'L9'" in capsys.readouterr().err
 
 
 def by_hand(means, covs, rollouts, skip=10):
@@ -236,6 +241,7 @@ def test_ppo_filter_comparison_trains_both_agents_and_writes_the_table(tmp_path)
     argv = ["ppo-filter-comparison", "--filter-params", str(params), "--total-steps", "128"]
     argv += ["--out", str(tmp_path / "res"), "--runs", str(tmp_path / "runs"), "--seeds", "0", "1"]
     policies = sorted((tmp_path / "runs").glob("*/policy.pt"))
+    assert len(policies) == 4
     stamps = [p.stat().st_mtime_ns for p in policies]
     assert cli_main(argv + ["--set", *tiny]) == 0
     assert [p.stat().st_mtime_ns for p in policies] == stamps

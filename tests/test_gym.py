@@ -373,7 +373,10 @@ def test_eval_writes_a_video_and_refuses_a_bad_suffix_first(tmp_path, capsys):
 
 
 # -- stable-baselines3 -----------------------------------------------------------------------
-sb3 = pytest.importorskip("stable_baselines3")
+@pytest.fixture(scope="module")
+def sb3():
+    """stable-baselines3 (the ``dev`` extra); its tests alone are skipped without it."""
+    return pytest.importorskip("stable_baselines3")
 
 
 def _train(algo, env, steps, **kwargs):
@@ -385,7 +388,7 @@ def _train(algo, env, steps, **kwargs):
 
 
 @pytest.mark.parametrize("vectorised", [False, True])
-def test_sb3_ppo_trains_and_evaluates_through_dockingrl(vectorised):
+def test_sb3_ppo_trains_and_evaluates_through_dockingrl(sb3, vectorised):
     from dockingrl.gym.sb3 import SB3Policy, SB3VecEnv
 
     if vectorised:
@@ -415,7 +418,7 @@ def test_sb3_ppo_trains_and_evaluates_through_dockingrl(vectorised):
 
 
 @pytest.mark.parametrize("vectorised", [False, True])
-def test_sb3_sac_trains(vectorised):
+def test_sb3_sac_trains(sb3, vectorised):
     from stable_baselines3.common.vec_env import VecMonitor
 
     from dockingrl.gym.sb3 import SB3Policy, SB3VecEnv
@@ -433,7 +436,7 @@ def test_sb3_sac_trains(vectorised):
     assert metrics["episodes"] == 4
 
 
-def test_sb3_vec_env_reports_episode_ends():
+def test_sb3_vec_env_reports_episode_ends(sb3):
     from dockingrl.gym.sb3 import SB3VecEnv
 
     env = SB3VecEnv(4, "noise", config=DockingConfig(max_steps=3))

@@ -241,9 +241,13 @@ def test_export_cli(tmp_path, capsys):
     policy = str(PPO_COMPOUND_POLICY)
     assert cli_main(["export", "--policy", policy, "--out", str(out), "--batch", "3"]) == 0
     assert out.stat().st_size > 0 and "3 vehicle(s)" in capsys.readouterr().out
-    for bad in (["--batch", "0"], ["--policy", str(tmp_path / "none.pt")]):
-        with pytest.raises(SystemExit):
+    for bad, code, says in (
+        (["--batch", "0"], 2, "argument --batch: must be an integer >= 1"),
+        (["--policy", str(tmp_path / "none.pt")], 1, "none.pt: no such file"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
             cli_main(["export", "--policy", policy, "--out", str(out), *bad])
+        assert exit_.value.code == code and says in capsys.readouterr().err
 
 
 def test_onboard_command_is_clipped_to_the_bounds_as_the_env_applies_it():

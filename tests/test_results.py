@@ -18,6 +18,12 @@ def test_the_results_fit_in_20_mb():
     assert size <= MAX_BYTES, f"results/ holds {size / 2**20:.1f} MB"
 
 
+def test_there_are_results_to_check():
+    """The parametrised checks below would only be skipped over an empty results/."""
+    assert any(RESULTS.rglob("*.json"))
+    assert any(RESULTS.glob("*/trials/*/config.json"))
+
+
 @pytest.mark.parametrize(
     "path", sorted(RESULTS.rglob("*.json")), ids=lambda p: str(p.relative_to(RESULTS))
 )

@@ -111,11 +111,15 @@ def test_training_transforms_follow_the_config():
 
 
 @pytest.mark.parametrize(
-    "kwargs",
-    [{"weight": -1.0}, {"weight": 1.0, "target_speed": 0.0}, {"weight": 1.0, "cap": 0.0}],
+    ("kwargs", "says"),
+    [
+        ({"weight": -1.0}, "weight must be >= 0"),
+        ({"weight": 1.0, "target_speed": 0.0}, "target_speed must be > 0"),
+        ({"weight": 1.0, "cap": 0.0}, r"cap \(the contact weight\) must be > 0"),
+    ],
 )
-def test_bad_penalty_arguments_are_refused(kwargs):
-    with pytest.raises(ValueError):
+def test_bad_penalty_arguments_are_refused(kwargs, says):
+    with pytest.raises(ValueError, match=says):
         ContactSpeedPenalty(**kwargs)
 
 

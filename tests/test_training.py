@@ -355,8 +355,11 @@ def test_cli_train_then_eval_the_saved_policy(tmp_path, capsys, short_episodes):
     # the saved policy reads 6 + 2 numbers: eval rebuilt the env with the current appended
     _, info = load_policy(tmp_path / "cli" / "policy.pt")
     assert info["config"]["observe_current"] is True
-    with pytest.raises(SystemExit):
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
         cli_main(["train", "--algo", "ppo", "--start-steps", "5"])  # a SAC/TD3 option
+    assert exit_.value.code == 2
+    assert "--start-steps does not apply to ppo" in capsys.readouterr().err
     # a resumed run keeps its config: only where and how fast it runs (and how long) may change
     run = str(tmp_path / "cli")
     for extra, message in (
