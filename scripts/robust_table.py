@@ -2,8 +2,12 @@
 level's success per training seed, the seeds' mean with its 95 % Student-t interval, and the
 95 % Wilson interval over all their episodes. Reads ``STRESS/<recipe>__s<seed>/stress.json``
 (``dockingrl stress --out``); writes ``table.json`` and ``table.md`` in ``--out``.
+``--second-look RECIPE:FIRST-LAST`` tables those training seeds of a recipe apart, as
+``RECIPE (second look)``: seeds that judged an earlier version of the recipe are not held out
+from it, so they are not pooled with the seeds that are.
 
-    python scripts/robust_table.py results/robust/stress --out results/robust
+    python scripts/robust_table.py results/robust/stress --out results/robust \
+        --second-look ppo-robust:100-102
 """
 
 from __future__ import annotations
@@ -19,11 +23,15 @@ from dockingrl.provenance import script_command
 from dockingrl.table.claims import episodes_ci, seed_ci
 
 
-def robust_table(stress_dir: Path) -> list[dict]:
-    """One row per recipe and level, in the order of the ladders' levels."""
+def robust_table(stress_dir: Path, second_look: dict[str, range] | None = None) -> list[dict]:
+    """One row per recipe and level, in the order of the ladders' levels; the seeds of
+    ``second_look[recipe]`` form rows of their own, ``RECIPE (second look)``."""
+    second_look = second_look or {}
     runs: dict[str, dict[int, dict]] = defaultdict(dict)
     for path in sorted(stress_dir.glob("*__s*/stress.json")):
         recipe, seed = path.parent.name.rsplit("__s", 1)
+        if int(seed) in second_look.get(recipe, ()):
+            recipe += " (second look)"
         runs[recipe][int(seed)] = json.loads(path.read_text())
     if not runs:
         raise ValueError(f"{stress_dir}: no <recipe>__s<seed>/stress.json")
@@ -56,6 +64,21 @@ def robust_table(stress_dir: Path) -> list[dict]:
     return rows
 
 
+def seed_range(text: str) -> tuple[str, range]:
+    """``RECIPE:FIRST-LAST`` as ``(recipe, range of seeds)``."""
+    recipe, _, seeds = text.partition(":")
+    first, _, last = seeds.partition("-")
+    try:
+        span = range(int(first), int(last or first) + 1)
+    except ValueError:
+        span = range(0)
+    if not recipe or not span:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected RECIPE:FIRST-LAST, e.g. ppo-robust:100-102"
+        )
+    return recipe, span
+
+
 def markdown(rows: list[dict]) -> str:
     def ci(v):
         return "-" if v is None else f"[{v[0]:.1f}, {v[1]:.1f}]"
@@ -78,8 +101,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("stress", type=Path, help="folder of <recipe>__s<seed>/stress.json")
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument(
+        "--second-look",
+        type=seed_range,
+        action="append",
+        default=[],
+        metavar="RECIPE:FIRST-LAST",
+        help="training seeds of a recipe that judged an earlier version of it, tabled apart",
+    )
     args = parser.parse_args(argv)
-    rows = robust_table(args.stress)
+    rows = robust_table(args.stress, dict(args.second_look))
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(
         args.out / "table.json", {"command": script_command("robust_table.py", argv), "rows": rows}

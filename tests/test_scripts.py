@@ -324,7 +324,7 @@ def test_a_slower_motion_model_tracks_the_fossen_vehicle(tmp_path):
     assert rmse[1.0] < 0.7 * rmse[2.5]
 
 
-def test_robust_table_pools_the_seeds_of_each_level(tmp_path):
+def test_robust_table_pools_the_seeds_of_each_level(tmp_path, capsys):
     def ladder(seed, rates):
         levels = [{"name": n, "success_rate": r} for n, r in rates.items()]
         return {"episodes": 100, "seed": seed + 20000, "levels": levels}
@@ -341,3 +341,10 @@ def test_robust_table_pools_the_seeds_of_each_level(tmp_path):
     assert "| `ppo-robust` | F5 | 80.0, 86.0 | 83.0 |" in (tmp_path / "table.md").read_text()
     with pytest.raises(ValueError, match="no <recipe>__s<seed>"):
         load_script("robust_table.py").robust_table(tmp_path / "empty")
+    argv = [str(tmp_path / "stress"), "--out", str(tmp_path), "--second-look", "ppo-robust:101"]
+    rows = load_script("robust_table.py").main(argv)
+    f5 = {r["recipe"]: r for r in rows if r["level"] == "F5"}
+    assert f5["ppo-robust"]["seeds"] == [100] and f5["ppo-robust (second look)"]["seeds"] == [101]
+    with pytest.raises(SystemExit):
+        load_script("robust_table.py").main([*argv[:-1], "ppo-robust:x"])
+    assert "expected RECIPE:FIRST-LAST" in capsys.readouterr().err
