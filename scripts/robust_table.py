@@ -36,8 +36,8 @@ def robust_table(stress_dir: Path, second_look: dict[str, range] | None = None) 
     if not runs:
         raise ValueError(f"{stress_dir}: no <recipe>__s<seed>/stress.json")
     rows = []
-    # a recipe's held-out seeds first, then its second look
-    for recipe, by_seed in sorted(runs.items(), key=lambda item: item[0].split(" ")):
+    # by name: a recipe's held-out seeds, then its second look
+    for recipe, by_seed in sorted(runs.items()):
         seeds = sorted(by_seed)
         levels = [level["name"] for level in by_seed[seeds[0]]["levels"]]
         episodes = [int(by_seed[s]["episodes"]) for s in seeds]

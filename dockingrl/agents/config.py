@@ -77,10 +77,9 @@ class TrainConfig(*TRAIN_GROUPS):
         """The checks of :meth:`validate`; each config class extends them."""
         options = {f.name: getattr(self, f.name) for f in fields(self)}
         check_types(self.algo, {k: v for k, v in options.items() if k not in _NOT_OPTIONS})
-        for f in fields(self):
-            value = getattr(self, f.name)
+        for name, value in options.items():
             if isinstance(value, float) and not (value == value and abs(value) != float("inf")):
-                refuse(self, f.name, "must be finite")
+                refuse(self, name, "must be finite")
         self._check_world()
         self._check_run()
         self._check_reward()

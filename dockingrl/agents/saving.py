@@ -245,21 +245,27 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     return actor.to(device).eval(), info
 
 
-def check_actor_fits(actor, scenario: str, obs_dim: int, options: Mapping) -> None:
-    """For an actor from :func:`load_policy`: check (:func:`check_layout`) that the env of
-    ``scenario`` built with the :func:`~dockingrl.make_env` ``options``, whose observation has
-    ``obs_dim`` numbers, gives it the observation it was trained on. Any other policy (the
-    managed surge controller, an actor built in code) passes unchecked."""
-    trained = getattr(actor, "trained_on", None)
-    if trained is None:
-        return
+def check_options_layout(info: Mapping, scenario: str, obs_dim: int, options: Mapping) -> None:
+    """:func:`check_layout` for the env of ``scenario`` built with the :func:`~dockingrl.make_env`
+    ``options`` (its ``observe_*`` and ``action_repeat``), whose observation has ``obs_dim``
+    numbers."""
     check_layout(
-        trained,
+        info,
         scenario,
         obs_dim,
         **layout_options(options),
         action_repeat=options.get("action_repeat", 1),
     )
+
+
+def check_actor_fits(actor, scenario: str, obs_dim: int, options: Mapping) -> None:
+    """For an actor from :func:`load_policy`: check (:func:`check_options_layout`) that the env
+    of ``scenario`` built with ``options``, whose observation has ``obs_dim`` numbers, gives it
+    the observation it was trained on. Any other policy (the managed surge controller, an actor
+    built in code) passes unchecked."""
+    trained = getattr(actor, "trained_on", None)
+    if trained is not None:
+        check_options_layout(trained, scenario, obs_dim, options)
 
 
 def _rebuild(path, payload: dict) -> torch.nn.Module:

@@ -36,7 +36,6 @@ from dockingrl.env.realism import SENSORS
 from dockingrl.scenarios import (
     FILTERED_OBSERVATION_KEYS,
     SCENARIOS,
-    layout_options,
     make_env,
     make_filter,
     observation_layout,
@@ -55,16 +54,10 @@ def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
     ``observe_filter_std``, ``action_repeat``) gives:
     :func:`~dockingrl.agents.saving.check_layout` against that env's observation spec.
     Raises :class:`~dockingrl.io.ArtifactError`, one line saying what differs."""
-    from dockingrl.agents.saving import check_layout
+    from dockingrl.agents.saving import check_options_layout
 
     env = make_env(scenario, 1, **options)
-    check_layout(
-        info,
-        scenario,
-        env.observation_spec["observation"].shape[-1],
-        **layout_options(options),
-        action_repeat=options.get("action_repeat", 1),
-    )
+    check_options_layout(info, scenario, env.observation_spec["observation"].shape[-1], options)
 
 
 class OnboardStep(nn.Module):
