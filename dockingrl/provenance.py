@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import shlex
 import sys
+from collections.abc import Iterable
+from pathlib import Path
 
 _ARGV: list[str] = []
 
@@ -24,6 +26,30 @@ def script_command(script: str, argv: list[str] | None = None) -> str:
     ARGS is ``argv`` or, when ``argv`` is None, the arguments the process was started with."""
     args = sys.argv[1:] if argv is None else argv
     return shlex.join(["python", f"scripts/{script}", *args])
+
+
+def shorten_folders(command: str, folders: Iterable[str | Path], least: int = 4) -> str:
+    """``command`` with each group of at least ``least`` arguments from ``folders`` that share a
+    parent folder written once: ``PARENT/*`` where they are all of its subfolders (what the shell
+    expands back), ``PARENT/<N folders>`` otherwise. For a figure's footer, where a grid's
+    command would list every trial."""
+    words = shlex.split(command)
+    given = {str(Path(f)) for f in folders}
+    groups: dict[Path, list[int]] = {}
+    for i, word in enumerate(words):
+        if str(Path(word)) in given:
+            groups.setdefault(Path(word).parent, []).append(i)
+    shown = [shlex.quote(w) for w in words]
+    for parent, places in groups.items():
+        if len(places) < least:
+            continue
+        named = {Path(words[i]).name for i in places}
+        every = parent.is_dir() and named == {d.name for d in parent.iterdir() if d.is_dir()}
+        tail = "/*" if every else f"/<{len(places)} folders>"
+        shown[places[0]] = shlex.quote(str(parent)) + tail
+        for i in places[1:]:
+            shown[i] = ""
+    return " ".join(w for w in shown if w)
 
 
 def footer_text(extra: str = "", device: str | None = None) -> str:

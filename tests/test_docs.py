@@ -319,3 +319,17 @@ def test_the_vehicles_page_quotes_the_current_transfer_ranges_of_table6():
     nominal = [cell["nominal_mean"] for cell in cells if not cell["recipe"].startswith("paper-")]
     quoted = f"against {min(nominal):.1f}-{max(nominal):.1f} % nominal"
     assert quoted in text, f"docs/vehicles.md should quote {quoted!r}"
+
+
+def test_the_table6_page_quotes_each_recipe_s_iqm_as_table_json_gives_it():
+    """results/table6/README.md quotes each recommended recipe's IQM over its four cells with its
+    bootstrap interval; the table is made anew as trials come in, and its (seeded) intervals
+    must be the ones quoted."""
+    text = " ".join((ROOT / "results" / "table6" / "README.md").read_text().split())
+    aggregates = json.loads((ROOT / "results" / "table6" / "table.json").read_text())["aggregates"]
+    quoted = [a for a in aggregates if not a["recipe"].startswith("paper-")]
+    assert quoted, "results/table6/table.json has no recipe's IQM"
+    for a in quoted:
+        low, high = a["ci95"]
+        figure = f"{a['iqm']:.1f} % [{low:.1f}, {high:.1f}]"
+        assert figure in text, f"results/table6/README.md should quote {a['recipe']}'s IQM {figure}"

@@ -355,3 +355,60 @@ def test_cells_name_their_seeds_and_held_out_refuses_tuning_seeds(tmp_path):
         write_table([*held, tuning], tmp_path / "out2", held_out=True)
     with pytest.raises(SystemExit, match="are not held out"):
         main(["table", *map(str, held), str(tuning), "--out", str(tmp_path / "o3"), "--held-out"])
+
+
+def test_a_recipe_without_periodic_evaluations_is_drawn_from_its_training_episodes(tmp_path):
+    """``ppo`` logs no periodic evaluation: its figure draws the training episodes' success and
+    reward and says so, rather than three empty axes; a recipe with them draws them."""
+    from dockingrl.table import _read, figure_curves
+
+    run = fake_run(tmp_path, "ppo", "ppo", "compound", 100, 92.0)
+    (run / "curves.csv").write_text(
+        "step,key,value\n"
+        + "".join(f"{s},train/success_rate,{s / 1e4}\n" for s in (100_000, 200_000))
+        + "".join(f"{s},train/episode_reward,{-s / 1e3}\n" for s in (100_000, 200_000))
+    )
+    keys, what = figure_curves([_read(run)])
+    assert [k for k, _ in keys] == ["train/success_rate", "train/episode_reward"]
+    assert what.startswith("training episodes (no periodic evaluation")
+    assert _read(run)["curves"]["train/success_rate"] == [(100_000, 10.0), (200_000, 20.0)]
+    sac = fake_run(tmp_path, "sac", "sac", "compound", 100, 99.0)
+    keys, what = figure_curves([_read(sac)])
+    assert keys[0][0] == "eval/success_rate" and what == "periodic evaluations"
+    write_table([run], tmp_path / "out")
+    assert (tmp_path / "out" / "figures_ppo.png").stat().st_size > 10_000
+
+
+def test_a_figure_footer_names_a_grid_s_trials_by_their_folder(tmp_path):
+    """The footer of ``dockingrl table results/table6/trials/* ...`` gives the glob, not every
+    trial (61 of them overran the figure); a part of a folder is counted, a few stay named."""
+    from dockingrl.provenance import shorten_folders
+
+    trials = [tmp_path / "trials" / f"t{k}" for k in range(5)]
+    for t in trials:
+        t.mkdir(parents=True)
+    command = "dockingrl table " + " ".join(map(str, trials)) + " --out 'a b'"
+    assert shorten_folders(command, trials) == f"dockingrl table {tmp_path}/trials/* --out 'a b'"
+    part = "dockingrl table " + " ".join(map(str, trials[:4])) + " --held-out"
+    shown = shorten_folders(part, trials[:4])
+    assert shown == f"dockingrl table {tmp_path}/trials/<4 folders> --held-out"
+    few = "dockingrl table " + " ".join(map(str, trials[:2]))
+    assert shorten_folders(few, trials[:2]) == few
+
+
+def test_the_bootstrap_intervals_repeat_and_leave_numpy_s_generator_alone():
+    """rliable draws its resamples from NumPy's global generator, not from the random state it
+    is given: the table seeds that generator for each interval, so a table made twice is the
+    same table, and gives the caller's generator back as it was."""
+    import numpy as np
+
+    from dockingrl.table.reliable import compare, iqm, scores_matrix
+
+    scores = scores_matrix([[90.0, 70.0, 95.0, 60.0, 99.0], [80.0, 85.0, 50.0, 97.0, 91.0]])
+    np.random.seed(1)
+    first = (iqm(scores), compare([90, 70, 95, 60, 99], [80, 85, 50, 97, 91]))
+    after = np.random.random()
+    np.random.seed(2)
+    assert (iqm(scores), compare([90, 70, 95, 60, 99], [80, 85, 50, 97, 91])) == first
+    np.random.seed(1)  # the caller's draw after the intervals is its first draw after seed 1
+    assert np.random.random() == after

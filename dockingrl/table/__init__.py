@@ -19,6 +19,7 @@ import numpy as np
 from dockingrl.evaluation import PAPER_RESULTS
 from dockingrl.evaluation.protocol import require_held_out, seeds_label
 from dockingrl.io import atomic_write, write_json
+from dockingrl.provenance import shorten_folders
 from dockingrl.table.checks import field_problem
 from dockingrl.table.claims import (
     claims,
@@ -41,7 +42,18 @@ _REQUIRED = {
     "summary": ("frames", "train_wall_clock_s"),
     "eval": ("episodes", "success_rate", "time_s", "total_reward"),
 }
-_CURVE_KEYS = ("eval/success_rate", "eval/total_reward", "eval/episode_time_s")
+#: the curves of Figures 6-8: the periodic evaluations' and, for a recipe without them, the
+#: training episodes' (key in curves.csv, axis label)
+_EVAL_CURVES = (
+    ("eval/success_rate", "success %"),
+    ("eval/total_reward", "reward"),
+    ("eval/episode_time_s", "episode time s"),
+)
+_TRAIN_CURVES = (
+    ("train/success_rate", "success % (training episodes)"),
+    ("train/episode_reward", "training reward"),
+)
+_CURVE_KEYS = {key for key, _ in _EVAL_CURVES + _TRAIN_CURVES}
 
 
 def _read(run_dir: Path) -> dict | None:
@@ -280,6 +292,7 @@ def write_table(
     training seed below 100 (:func:`dockingrl.evaluation.protocol.require_held_out`)."""
     out = Path(out)
     base = None if baseline is None else read_baseline(Path(baseline))
+    run_dirs = [str(d) for d in run_dirs]
     runs = [r for r in (_read(Path(d)) for d in run_dirs) if r is not None]
     if not runs:
         raise ValueError("no finished run (config.json, summary.json and eval.json) given")
@@ -318,7 +331,8 @@ def write_table(
         group = {s: groups[(r, s)] for r, s in groups if r == recipe}
         machines = sorted({r["summary"].get("machine", "") for g in group.values() for r in g})
         hours = sum(r["summary"]["train_wall_clock_s"] for g in group.values() for r in g) / 3600
-        footer = f"{command}  |  {'; '.join(machines)}  |  {hours:.1f} h of training in all"
+        shown = shorten_folders(command, run_dirs)
+        footer = f"{shown}  |  {'; '.join(machines)}  |  {hours:.1f} h of training in all"
         plot_curves(group, recipe, out / f"figures_{recipe}.png", footer)
     if prune_policies:
         for key, group in groups.items():
@@ -328,23 +342,41 @@ def write_table(
     return table
 
 
+def _steps_label(steps: float, _position=None) -> str:
+    """An env-step tick as ``0``, ``250 k`` or ``1.5 M``."""
+    if steps == 0:
+        return "0"
+    return f"{steps / 1e6:g} M" if abs(steps) >= 1e6 else f"{steps / 1e3:g} k"
+
+
+def figure_curves(runs: list[dict]) -> tuple[tuple[tuple[str, str], ...], str]:
+    """The curves a recipe's figure draws, as (key, axis label), and what they are: the
+    periodic evaluations where any run has them, else the training episodes."""
+    if any(r["curves"].get("eval/success_rate") for r in runs):
+        return _EVAL_CURVES, "periodic evaluations"
+    return (
+        _TRAIN_CURVES,
+        "training episodes (no periodic evaluation; the recipe's own draws and reward)",
+    )
+
+
 def plot_curves(
     by_scenario: dict[str, list[dict]], recipe: str, path: Path, footer: str = ""
 ) -> Path:
     """Figures 6-8 for one recipe: success, reward and time of the periodic evaluations
-    against env steps, one line per scenario (mean over seeds) and a band (min to max)."""
+    against env steps, one line per scenario (mean over seeds) and a band (min to max). A
+    recipe without periodic evaluations (``ppo``'s) gets its training episodes' success and
+    reward instead, under the recipe's own draws and reward, and a title that says so."""
+    from matplotlib.ticker import FuncFormatter
+
     from dockingrl.plots import _save, plt
 
-    keys = [
-        ("eval/success_rate", "success %"),
-        ("eval/total_reward", "reward"),
-        ("eval/episode_time_s", "episode time s"),
-    ]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    keys, what = figure_curves([r for group in by_scenario.values() for r in group])
+    fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 4.4))
+    steps_format = FuncFormatter(_steps_label)
     for scenario in [s for s in SCENARIO_ORDER if s in by_scenario]:
-        runs = by_scenario[scenario]
-        for ax, (key, label) in zip(axes, keys, strict=True):
-            curves = [r["curves"].get(key, []) for r in runs if r["curves"].get(key)]
+        for ax, (key, _) in zip(axes, keys, strict=True):
+            curves = [r["curves"][key] for r in by_scenario[scenario] if r["curves"].get(key)]
             if not curves:
                 continue
             steps = np.array([s for s, _ in curves[0]], dtype=float)
@@ -353,9 +385,12 @@ def plot_curves(
             )
             (line,) = ax.plot(steps, values.mean(0), label=f"{scenario} ({len(curves)} seeds)")
             ax.fill_between(steps, values.min(0), values.max(0), color=line.get_color(), alpha=0.2)
-            ax.set_xlabel("env steps")
-            ax.set_ylabel(label)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"{recipe}: periodic evaluations, mean over seeds (band: min to max)")
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    for ax, (_, label) in zip(axes, keys, strict=True):
+        ax.set_xlabel("env steps")
+        ax.set_ylabel(label)
+        ax.xaxis.set_major_formatter(steps_format)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=8)
+    fig.suptitle(f"{recipe}: {what}, mean over seeds (band: min to max)")
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     return _save(fig, path, footer=footer)

@@ -43,15 +43,23 @@ def _interval_estimate(scores: dict, func) -> tuple[float, list[float]]:
     the one entry of ``scores``."""
     library = _rliable().library
     state = np.random.RandomState(BOOTSTRAP_SEED)
-    with warnings.catch_warnings():  # arch's notice that a RandomState will be deprecated
-        warnings.simplefilter("ignore", FutureWarning)
-        estimate, interval = library.get_interval_estimates(
-            scores,
-            func,
-            reps=BOOTSTRAP_REPS,
-            confidence_interval_size=LEVEL,
-            random_state=state,
-        )
+    # rliable's bootstraps draw their resamples from NumPy's global generator
+    # (``StratifiedBootstrap.update_indices``), not from ``random_state``: seed it for the call
+    # and give the caller's state back
+    saved = np.random.get_state()
+    np.random.seed(BOOTSTRAP_SEED)
+    try:
+        with warnings.catch_warnings():  # arch's notice that a RandomState will be deprecated
+            warnings.simplefilter("ignore", FutureWarning)
+            estimate, interval = library.get_interval_estimates(
+                scores,
+                func,
+                reps=BOOTSTRAP_REPS,
+                confidence_interval_size=LEVEL,
+                random_state=state,
+            )
+    finally:
+        np.random.set_state(saved)
     (key,) = scores
     low, high = np.asarray(interval[key], dtype=float).ravel()[:2]
     return float(np.asarray(estimate[key]).ravel()[0]), [float(low), float(high)]
