@@ -383,7 +383,8 @@ def plot_curves(
             values = np.array(
                 [np.interp(steps, [s for s, _ in c], [v for _, v in c]) for c in curves]
             )
-            (line,) = ax.plot(steps, values.mean(0), label=f"{scenario} ({len(curves)} seeds)")
+            seeds = f"{len(curves)} seed" + ("s" if len(curves) > 1 else "")
+            (line,) = ax.plot(steps, values.mean(0), label=f"{scenario} ({seeds})")
             ax.fill_between(steps, values.min(0), values.max(0), color=line.get_color(), alpha=0.2)
     for ax, (_, label) in zip(axes, keys, strict=True):
         ax.set_xlabel("env steps")
