@@ -327,11 +327,11 @@ def write_table(
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "table.json", table)
     atomic_write(out / "table.md", lambda tmp: tmp.write_text(markdown(table)))
+    shown = shorten_folders(command, run_dirs)
     for recipe in sorted({k[0] for k in cells}):
         group = {s: groups[(r, s)] for r, s in groups if r == recipe}
         machines = sorted({r["summary"].get("machine", "") for g in group.values() for r in g})
         hours = sum(r["summary"]["train_wall_clock_s"] for g in group.values() for r in g) / 3600
-        shown = shorten_folders(command, run_dirs)
         footer = f"{shown}  |  {'; '.join(machines)}  |  {hours:.1f} h of training in all"
         plot_curves(group, recipe, out / f"figures_{recipe}.png", footer)
     if prune_policies:
