@@ -4,6 +4,7 @@ effect (Fig. 5) and learning curves (Figs. 6-8). Every function writes a PNG ato
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,9 +17,36 @@ import numpy as np  # noqa: E402
 from dockingrl.io import atomic_write  # noqa: E402
 
 
+FOOTER_POINTS = 6
+"""Font size of a figure's footer (its command, machine and wall-clock)."""
+
+
+def add_footer(fig, footer: str) -> int:
+    """Write ``footer`` under everything ``fig`` holds, wrapped to the figure's width, and make
+    the figure that much taller so that no line runs over an axis or off the edge: every axis
+    and figure text keeps its size in inches and moves up. Returns the number of lines."""
+    width, height = fig.get_size_inches()
+    per_line = max(40, int(width * 72 / (0.58 * FOOTER_POINTS)))  # a wide character is 0.58 em
+    lines = textwrap.wrap(footer, per_line, break_long_words=True, break_on_hyphens=False)
+    extra = (1.3 * FOOTER_POINTS * len(lines) + 4) / 72
+    keep = height / (height + extra)  # the old content's share of the taller figure
+    fig.set_size_inches(width, height + extra)
+    for ax in fig.axes:
+        box = ax.get_position()
+        ax.set_position((box.x0, 1 - keep + box.y0 * keep, box.width, box.height * keep))
+    for text in fig.texts:
+        x, y = text.get_position()
+        text.set_position((x, 1 - keep + y * keep))
+    fig.text(
+        0.01, 2 / 72 / (height + extra), "\n".join(lines),
+        fontsize=FOOTER_POINTS, color="0.4", ha="left", va="bottom", linespacing=1.3,
+    )
+    return len(lines)
+
+
 def _save(fig, path: str | Path, footer: str | None = None) -> Path:
     if footer:
-        fig.text(0.01, 0.005, footer, fontsize=6, color="0.4", ha="left", va="bottom", wrap=True)
+        add_footer(fig, footer)
     try:
         return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
     finally:

@@ -168,6 +168,33 @@ def test_success_map_and_plots(tmp_path):
     assert png.stat().st_size > 10_000
 
 
+def test_a_long_footer_wraps_under_the_axes_and_inside_the_figure():
+    """A figure's footer (its command, often 400 characters) neither runs off the right edge
+    nor over the axes' tick labels: the figure grows by its lines."""
+    import matplotlib.pyplot as plt
+
+    from dockingrl.plots import add_footer
+
+    fig, axes = plt.subplots(2, 1, figsize=(7, 4))
+    axes[1].set_xlabel("env steps")
+    fig.suptitle("title")
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    renderer = fig.canvas.get_renderer()
+    sizes = [ax.get_tightbbox(renderer).height for ax in axes]
+    command = "dockingrl train " + "--filter-params results/filter_ablation/a_long_name.pt " * 8
+    lines = add_footer(fig, command + " | AMD EPYC, 2 cores")
+    assert lines >= 3 and tuple(fig.get_size_inches()) > (7, 4)
+    fig.canvas.draw()
+    footer = fig.texts[-1].get_window_extent(renderer)
+    width, height = fig.canvas.get_width_height()
+    assert footer.x0 >= 0 and footer.x1 <= width and footer.y0 >= 0
+    boxes = [ax.get_tightbbox(renderer) for ax in axes]
+    assert footer.y1 < min(box.y0 for box in boxes)  # below the lowest tick label
+    assert [box.height for box in boxes] == pytest.approx(sizes)  # the axes keep their size
+    assert fig.texts[0].get_window_extent(renderer).y1 <= height  # the title stays inside
+    plt.close(fig)
+
+
 def test_cli_eval_writes_a_results_folder(tmp_path, capsys):
     out = tmp_path / "ms"
     code = cli_main(
