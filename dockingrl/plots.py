@@ -16,7 +16,6 @@ import numpy as np  # noqa: E402
 
 from dockingrl.io import atomic_write  # noqa: E402
 
-
 FOOTER_POINTS = 6
 """Font size of a figure's footer (its command, machine and wall-clock)."""
 
@@ -38,8 +37,14 @@ def add_footer(fig, footer: str) -> int:
         x, y = text.get_position()
         text.set_position((x, 1 - keep + y * keep))
     fig.text(
-        0.01, 2 / 72 / (height + extra), "\n".join(lines),
-        fontsize=FOOTER_POINTS, color="0.4", ha="left", va="bottom", linespacing=1.3,
+        0.01,
+        2 / 72 / (height + extra),
+        "\n".join(lines),
+        fontsize=FOOTER_POINTS,
+        color="0.4",
+        ha="left",
+        va="bottom",
+        linespacing=1.3,
     )
     return len(lines)
 

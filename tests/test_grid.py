@@ -390,3 +390,22 @@ def test_max_concurrent_above_the_cores_runs_every_trial_at_once(tmp_path, monke
     # having seen fewer), however slowly a loaded machine starts them
     ends = sorted(marks.glob("end_*"))
     assert len(ends) == n and [int(p.read_text()) for p in ends] == [n] * n
+
+
+def test_the_cost_bench_extrapolates_the_rate_past_the_warm_up():
+    """bench/grid_cost.py: a run that took 100 s for its first 10 k env steps (random start,
+    compiling), then 50 steps/s, is estimated from the later rate, not the mean one."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "grid_cost", Path(__file__).parents[1] / "bench" / "grid_cost.py"
+    )
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    points = [(1000 * k, 10.0 * k) for k in range(1, 11)]  # 100 steps/s to 10 k
+    points += [(10_000 + 1000 * k, 100.0 + 20.0 * k) for k in range(1, 16)]  # then 50 steps/s
+    row = bench.extrapolate(points, 100_000, warm_steps=10_000)
+    assert row["steps_per_s"] == pytest.approx(50.0)
+    assert row["estimate_s"] == pytest.approx(100 + 90_000 / 50)
+    with pytest.raises(ValueError, match="--seconds"):
+        bench.extrapolate(points[:8], 100_000, warm_steps=10_000)
