@@ -2,13 +2,15 @@
 else asked of the machine: each seed's time from the start of training to its printed success
 rate, the whole command's time, and its success on its 2,000 final episodes (episode seed:
 training seed + 10,000). Writes ``main_job.json`` and ``table.md`` in ``--out``, and each
-seed's ``config.json``, ``summary.json`` and ``eval.json`` under ``--out/s<seed>/``.
+seed's ``config.json``, ``summary.json`` and ``eval.json`` under
+``--out/trials/RECIPE__SCENARIO__s<seed>/`` (as a grid's trials, checked against their recipe).
 
     python scripts/main_job.py --seeds 100 101 102 103 104 --out results/main_job
 
 Run it from a fresh clone: ``main.sh`` installs the clone it is in. The run folders go to
 ``--runs`` (default ``runs/main_job``); a seed whose run folder already holds a
-``summary.json`` is read, not run again, so an interrupted call resumes at its next seed.
+``summary.json`` is read, not run again (with the command's time it wrote there), so an
+interrupted call resumes at its next seed.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ def run_seed(seed: int, runs: Path) -> dict:
             check=True,
         )
         command_s = time.perf_counter() - start
+        write_json(run_dir / "main_job.json", {"command_s": command_s})
+    elif (run_dir / "main_job.json").exists():  # run by an earlier call
+        command_s = json.loads((run_dir / "main_job.json").read_text())["command_s"]
     summary = json.loads((run_dir / "summary.json").read_text())
     success = float(summary["success_rate"])
     episodes = int(json.loads((run_dir / "eval.json").read_text())["episodes"])
@@ -60,7 +65,6 @@ def run_seed(seed: int, runs: Path) -> dict:
         "training_to_success_s": round(to_success, 1),
         "command_s": None if command_s is None else round(command_s, 1),
         "machine": summary["machine"],
-        "run_dir": str(run_dir.relative_to(ROOT) if run_dir.is_relative_to(ROOT) else run_dir),
     }
 
 
@@ -89,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for seed in args.seeds:
         rows.append(run_seed(seed, runs))
-        dest = args.out / f"s{seed}"
+        config = json.loads((runs / f"s{seed}" / "config.json").read_text())
+        dest = args.out / "trials" / f"{config['recipe']}__{config['scenario']}__s{seed}"
         dest.mkdir(parents=True, exist_ok=True)
         for name in KEPT:
             shutil.copyfile(runs / f"s{seed}" / name, dest / name)

@@ -348,3 +348,28 @@ def test_robust_table_pools_the_seeds_of_each_level(tmp_path, capsys):
     with pytest.raises(SystemExit):
         load_script("robust_table.py").main([*argv[:-1], "ppo-robust:x"])
     assert "expected RECIPE:FIRST-LAST" in capsys.readouterr().err
+
+
+def test_main_job_reads_finished_seeds_and_lays_them_out_as_trials(tmp_path, capsys):
+    """A seed whose run folder holds ``summary.json`` is read, with the command's time it wrote,
+    not trained again; its files land as a trial of its recipe; the times add up."""
+    main_job = load_script("main_job.py")
+    trial = ROOT / "results" / "main_job" / "trials" / "ppo__compound__s100"
+    runs = tmp_path / "runs"
+    (runs / "s100").mkdir(parents=True)
+    for name in ("config.json", "summary.json", "eval.json"):
+        (runs / "s100" / name).write_text((trial / name).read_text())
+    (runs / "s100" / "main_job.json").write_text('{"command_s": 12.5}')
+    out = tmp_path / "out"
+    assert main_job.main(["--seeds", "100", "--runs", str(runs), "--out", str(out)]) == 0
+    (row,) = json.loads((out / "main_job.json").read_text())["seeds"]
+    summary = json.loads((trial / "summary.json").read_text())
+    assert row["command_s"] == 12.5
+    assert row["success_rate"] == summary["success_rate"]
+    assert row["training_to_success_s"] == pytest.approx(
+        summary["train_wall_clock_s"] + summary["final_eval_wall_clock_s"], abs=0.05
+    )
+    assert row["interval"][0] < row["success_rate"] < row["interval"][1]
+    kept = out / "trials" / "ppo__compound__s100"
+    assert sorted(p.name for p in kept.iterdir()) == ["config.json", "eval.json", "summary.json"]
+    assert "| 100 | " in (out / "table.md").read_text()
