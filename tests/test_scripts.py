@@ -373,3 +373,40 @@ def test_main_job_reads_finished_seeds_and_lays_them_out_as_trials(tmp_path, cap
     kept = out / "trials" / "ppo__compound__s100"
     assert sorted(p.name for p in kept.iterdir()) == ["config.json", "eval.json", "summary.json"]
     assert "| 100 | " in (out / "table.md").read_text()
+
+
+def test_robust_table_compares_two_recipes_level_by_level_with_rliable(tmp_path, capsys):
+    """``--compare A:B``: at each level both recipes have, P(a seed of A docks more than one of
+    B) with its interval; with fewer than three seeds a side, too few to tell."""
+    ladders = {
+        "sac-robust": {100: (91.0, 88.0), 101: (92.0, 87.0), 102: (90.0, 90.5)},
+        "ppo-robust": {103: (85.0, 91.0), 104: (87.0, 90.0), 105: (86.0, 89.0)},
+    }
+    for recipe, seeds in ladders.items():
+        for seed, (l5, f5) in seeds.items():
+            folder = tmp_path / "stress" / f"{recipe}__s{seed}"
+            folder.mkdir(parents=True)
+            levels = [{"name": "L5", "success_rate": l5}, {"name": "F5", "success_rate": f5}]
+            ladder = {"episodes": 2000, "seed": seed + 20000, "levels": levels}
+            (folder / "stress.json").write_text(json.dumps(ladder))
+    script = load_script("robust_table.py")
+    argv = [str(tmp_path / "stress"), "--out", str(tmp_path), "--compare", "sac-robust:ppo-robust"]
+    script.main(argv)
+    found = {
+        c["level"]: c for c in json.loads((tmp_path / "table.json").read_text())["comparisons"]
+    }
+    assert found["L5"]["probability"] == 1.0 and found["L5"]["verdict"] == "sac-robust docks more"
+    assert found["F5"]["probability"] == pytest.approx(2 / 9)  # 90.5 beats 90 and 89, no other wins
+    assert found["F5"]["ci95"][0] < 0.5 < found["F5"]["ci95"][1]
+    assert found["F5"]["verdict"].startswith("not resolved")
+    assert (
+        "| `sac-robust` | `ppo-robust` | L5 | 3, 3 | 1.00 [1.00, 1.00] |"
+        in (tmp_path / "table.md").read_text()
+    )
+    few = script.main([*argv, "--second-look", "sac-robust:102"])  # two held-out seeds left
+    assert few and script.comparisons(few, [("sac-robust", "ppo-robust")])[0]["probability"] is None
+    with pytest.raises(ValueError, match="no level that both"):
+        script.comparisons(few, [("sac-robust", "td3-robust")])
+    with pytest.raises(SystemExit):
+        script.main([*argv[:-1], "sac-robust"])
+    assert "expected A:B" in capsys.readouterr().err
