@@ -124,6 +124,9 @@ def main() -> None:
     for t in grid.trials:
         if t.scenario == args.scenario and t.recipe not in firsts:
             firsts[t.recipe] = t
+    unknown = [r for r in args.recipes or () if r not in firsts]
+    if unknown:
+        parser.error(f"grid {grid.name} has no {args.scenario} trial of {', '.join(unknown)}")
     chosen = [firsts[r] for r in (args.recipes or firsts)]
     print(
         f"# {describe_machine('cpu')}; grid {grid.name}, "
