@@ -22,7 +22,8 @@ FIGURE_10_CASES = [
 def resolve_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
     """``managed_surge`` or the path of a policy saved by training. Returns
     ``(policy, name, scenario or None, make_env options the policy was trained with, its
-    ``info`` from :func:`dockingrl.agents.saving.load_policy`, empty for the controller)``."""
+    ``info`` from :func:`dockingrl.agents.saving.load_policy`, empty for the controller)``; the
+    name is the policy's recipe where its file holds one, else its algorithm."""
     if spec == "managed_surge":
         from dockingrl.agents import ManagedSurgePolicy
 
@@ -34,7 +35,8 @@ def resolve_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
 
     policy, meta = load_saved(spec, device=device)
     options = pipeline_options(meta["config"])
-    return policy, meta.get("algo", "agent"), meta.get("scenario"), options, meta
+    name = meta["config"].get("recipe") or meta.get("algo", "agent")
+    return policy, name, meta.get("scenario"), options, meta
 
 
 def evaluation_world(

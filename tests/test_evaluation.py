@@ -255,3 +255,24 @@ def test_stochastic_evaluation_samples_the_policy_and_says_so():
     stochastic = evaluate(policy, "noise", 4, seed=0, config=config, stochastic=True)
     assert set(seen) == {ExplorationType.RANDOM}
     assert stochastic["policy_mode"] == "stochastic"
+
+
+def test_a_trained_policy_is_named_by_its_recipe_else_its_algorithm(monkeypatch):
+    """``dockingrl eval`` and ``stress`` title a policy by the recipe it was trained with (a
+    ``sac-robust`` ladder is not "sac"); a file without one, by its algorithm."""
+    from pathlib import Path
+
+    import dockingrl.agents.saving as saving
+    from dockingrl.policies import resolve_policy
+
+    root = Path(__file__).resolve().parents[1]
+    path = root / "results" / "robust" / "trials" / "sac-robust__filtered__s102" / "policy.pt"
+    _, name, scenario, _, meta = resolve_policy(str(path))
+    assert (name, scenario, meta["algo"]) == ("sac-robust", "filtered", "sac")
+    loaded = saving.load_policy(str(path))
+    without = {
+        **loaded[1],
+        "config": {k: v for k, v in loaded[1]["config"].items() if k != "recipe"},
+    }
+    monkeypatch.setattr(saving, "load_policy", lambda spec, device="cpu": (loaded[0], without))
+    assert resolve_policy(str(path))[1] == "sac"
