@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import statistics
 import tempfile
@@ -68,22 +69,13 @@ def extrapolate(points: list[tuple[int, float]], total_steps: int, warm_steps: i
 
 def measure(trial: Trial, seconds: float, threads: int, out: Path) -> dict:
     """Train ``trial`` for ``seconds`` in ``out`` and extrapolate its training time."""
-    from dockingrl.recipes import load_recipe
     from dockingrl.training import train
 
-    recipe = load_recipe(trial.recipe)
     short = {"logger": "csv", "final_eval_episodes": 10, "checkpoint_every": 0}
-    if recipe.config.get("keep_best"):
+    short["time_budget_s"] = seconds
+    if trial.config(out, threads).keep_best:
         short["select_episodes"] = 10  # the selection follows the training time measured
-    cfg = recipe.make_config(
-        scenario=trial.scenario,
-        seed=trial.seed,
-        threads=threads,
-        out=str(out),
-        run_name=trial.name,
-        time_budget_s=seconds,
-        **{**trial.overrides, **short},
-    )
+    cfg = dataclasses.replace(trial, overrides={**trial.overrides, **short}).config(out, threads)
     start = time.perf_counter()
     train(cfg, progress=False, command="bench/grid_cost.py")
     warm = getattr(cfg, "start_steps", 0) + 2 * getattr(cfg, "frames_per_batch", 0)
