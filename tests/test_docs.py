@@ -62,21 +62,25 @@ def exists(path: Path) -> bool:
 
 
 def broken_links(doc: Path) -> list[str]:
-    """Relative links of ``doc`` whose file, folder or same-page anchor does not exist."""
+    """Relative links of ``doc`` whose file, folder or anchor (on this page or another
+    Markdown page) does not exist."""
     text = doc.read_text()
-    anchors = {slug(h) for h in HEADING.findall(prose(text))}
     bad = []
     for target in LINK.findall(prose(text)):
         if re.match(r"^[a-z][a-z0-9+.-]*:", target):
             continue  # https:, mailto:
         path, _, anchor = target.partition("#")
-        if not path:
-            if anchor not in anchors:
-                bad.append(f"{doc.name}: anchor #{anchor} names no heading")
-            continue
-        if not exists(doc.parent / path):
+        page = doc.parent / path if path else doc
+        if path and not exists(page):
             bad.append(f"{doc.name}: link {target} does not resolve")
+        elif anchor and page.suffix == ".md" and anchor not in anchors(page):
+            bad.append(f"{doc.name}: anchor #{anchor} names no heading of {page.name}")
     return bad
+
+
+def anchors(page: Path) -> set[str]:
+    """The anchors of a Markdown page's headings."""
+    return {slug(h) for h in HEADING.findall(prose(page.read_text()))}
 
 
 def code_paths(text: str) -> list[str]:
@@ -235,19 +239,21 @@ def test_readme_is_short_and_starts_with_the_set_up_commands():
 
 
 def test_the_checks_find_a_broken_link_path_and_anchor(tmp_path):
-    (tmp_path / "there.md").write_text("x")
+    (tmp_path / "there.md").write_text("x\n## Using `y -> -y`\n")
     doc = tmp_path / "doc.md"
     doc.write_text(
         "# A title\n[ok](there.md) [gone](missing.md) [web](https://example.org/x)\n"
         "[self](#a-title) [nowhere](#no-such-heading) ![fig](missing.png)\n"
+        "[there](there.md#using-y----y) [not there](there.md#using-y---y)\n"
         "`results/no_such_folder/` `docs/choices.md` `results/{table6,nothing}/` "
         "`tests/test_docs.py::test_x` `dockingrl train --out results/x` `README.md`\n"
         "```bash\n[not a link](missing_too.md) `results/in_a_block/`\n```\n"
     )
     assert broken_links(doc) == [
         "doc.md: link missing.md does not resolve",
-        "doc.md: anchor #no-such-heading names no heading",
+        "doc.md: anchor #no-such-heading names no heading of doc.md",
         "doc.md: link missing.png does not resolve",
+        "doc.md: anchor #using-y---y names no heading of there.md",
     ]
     assert code_paths(doc.read_text()) == [
         "results/no_such_folder/",
