@@ -307,6 +307,27 @@ def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, ca
     assert "sensor log nolog.csv: cannot read it" in said
 
 
+def test_an_output_that_is_the_command_s_own_input_is_refused(tmp_path, capsys):
+    log, policy = tmp_path / "log.csv", tmp_path / "p.pt"
+    log.write_text("kept")
+    policy.write_text("kept")
+    for argv, flag, path in (
+        (["replay", "--policy", str(policy), "--log", str(log), "--out", str(log)], "log", log),
+        (
+            ["replay", "--policy", str(policy), "--log", str(log), "--out", str(policy)],
+            "policy",
+            policy,
+        ),
+        (
+            ["record-log", "--policy", str(policy), "--out", f"{tmp_path}/../{tmp_path.name}/p.pt"],
+            "policy",
+            policy,
+        ),
+    ):
+        assert f"is the --{flag} file; write to another" in fails(capsys, argv, 2)
+        assert path.read_text() == "kept"
+
+
 @pytest.mark.parametrize(
     ("text", "says"),
     [

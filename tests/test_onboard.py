@@ -135,6 +135,11 @@ def test_onboard_policy_refuses_bad_readings():
         policy.act(torch.zeros(6), torch.zeros(2, dtype=torch.complex64))
     with pytest.raises(ValueError, match=r"z must be real numbers of shape \(6,\) .*, got str"):
         policy.act("abc", torch.zeros(2))
+    with pytest.raises(ValueError, match=r"z's range .* must be >= 0 m"):
+        policy.act(
+            torch.tensor([[20.0, 0, 0, 0, 0, 0], [-10.0, 0.5, 0, 0.3, 0, 0]]), torch.zeros(2, 2)
+        )
+    assert policy.filter_state is None  # refused before the filter starts
     policy.act(torch.tensor([20.0, 0, 0, 0, 0, 0]), torch.zeros(2))
     with pytest.raises(ValueError, match="reset"):
         policy.act(torch.zeros(3, 6), torch.zeros(3, 2))

@@ -2,6 +2,7 @@
 OnboardPolicy, the sensor-log format, the recorder and the replay that gives the env's
 commands back, and the example that runs the program with onnxruntime and numpy alone."""
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -129,6 +130,7 @@ def test_the_replay_and_record_commands(tmp_path, capsys):
         ("# dockingrl sensor log v1\nt,sensor,a,b\n0,gps,1,2\n", "line 3: unknown sensor 'gps'"),
         ("# dockingrl sensor log v1\nt,sensor,a,b\n0,usbl,nan,2\n", "line 3: .* must be finite"),
         ("# dockingrl sensor log v1\nt,sensor,a,b\n0,usbl,x,2\n", "line 3: .* must be numbers"),
+        ("# dockingrl sensor log v1\nt,sensor,a,b\n0,usbl,-1,2\n", "line 3: a usbl range .* >= 0"),
         (
             "# dockingrl sensor log v1\nt,sensor,a,b\n1,usbl,1,2\n0,dvl,1,2\n",
             "line 4: t 0.0 is before",
@@ -151,6 +153,20 @@ def test_a_bad_log_is_refused_in_one_line(tmp_path, text, message):
     path.write_text(text)
     with pytest.raises(ValueError, match=message):
         read_log(path)
+
+
+def test_a_non_finite_command_names_the_tick_that_gave_it(tmp_path, monkeypatch):
+    rows = "".join(f"{t},{s},1e30,0.1\n" for t in (0, 0.2) for s in ("usbl", "dvl", "imu"))
+    path = tmp_path / "log.csv"
+    path.write_text(f"# dockingrl sensor log v1\nt,sensor,a,b\n0,current,0,0\n{rows}")
+    policy = robust_like()
+    broken = lambda *state: (torch.full((1, 2), math.nan), *state[2:])  # noqa: E731
+    monkeypatch.setattr(policy.step, "forward", broken)
+    with pytest.raises(
+        RuntimeError,
+        match=r"at t 0 s, readings \(1e\+30, 0\.1, .*\), current \(0, 0\): .* non-finite command",
+    ):
+        replay(policy, read_log(path))
 
 
 def test_a_log_without_a_sensor_cannot_start_the_loop(tmp_path):

@@ -104,6 +104,17 @@ def output_file(text: str) -> str:
     return text
 
 
+def distinct_output(out: str, **inputs: str) -> None:
+    """``UsageError`` when the file ``out`` would be written over one of the command's
+    ``inputs`` (option name -> path): a replay's commands over its log, a log over its policy."""
+    from pathlib import Path
+
+    for option, path in inputs.items():
+        if Path(out).resolve() == Path(path).resolve():
+            flag = option.replace("_", "-")
+            raise UsageError(f"--out {out} is the --{flag} file; write to another")
+
+
 def existing_file(text: str) -> str:
     """An argparse type: a file to read, refused up front when it is missing or a folder."""
     from pathlib import Path

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from dockingrl.cli.arguments import SEED, UsageError, output_file
+from dockingrl.cli.arguments import SEED, UsageError, distinct_output, output_file
 
 
 def _policy_and_config(args: argparse.Namespace):
@@ -25,6 +25,7 @@ def cmd_record_log(args: argparse.Namespace) -> int:
     from dockingrl.env import DockingEnv
     from dockingrl.onboard.sensor_log import record_episode, write_log
 
+    distinct_output(args.out, policy=args.policy)
     policy, config = _policy_and_config(args)
     env = DockingEnv(1, config=config, seed=args.seed)
     log, commands = record_episode(policy, env)
@@ -38,6 +39,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     """``dockingrl replay``: the commands the onboard loop sends over a log."""
     from dockingrl.onboard.sensor_log import read_log, replay, write_replay
 
+    distinct_output(args.out, log=args.log, policy=args.policy)
     log = read_log(args.log)  # a bad log is refused before the policy is loaded
     policy, config = _policy_and_config(args)
     result = replay(policy, log, config.dt)

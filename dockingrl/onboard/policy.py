@@ -324,6 +324,10 @@ class OnboardPolicy(nn.Module):
         USBL, DVL and IMU readings in ``z`` arrived; the filter updates with those of age 0
         only (``None``: every reading is new; a scenario without a filter ignores them)."""
         z, current = self._check(z, "z", OBS_DIM), self._check(current, "current", 2)
+        if bool((z[..., 0] < 0).any()):
+            raise ValueError(
+                f"z's range (its first entry, eq. 2's rho) must be >= 0 m, got {z.tolist()}"
+            )
         single = z.dim() == 1
         if z.shape[:-1] != current.shape[:-1]:
             raise ValueError(

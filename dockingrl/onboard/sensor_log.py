@@ -92,7 +92,7 @@ def write_log(log: SensorLog, path: str | Path) -> Path:
 def read_log(path: str | Path) -> SensorLog:
     """Read a log; ``ValueError`` (one line, naming the file and row) for anything else: a
     missing file, another header, an unknown sensor, a number that is not one or not finite,
-    times that go back, a silence over :data:`MAX_GAP_S` or a log longer than
+    a negative range, times that go back, a silence over :data:`MAX_GAP_S` or a log longer than
     :data:`MAX_SPAN_S`."""
     path = Path(path)
     try:
@@ -119,6 +119,8 @@ def read_log(path: str | Path) -> SensorLog:
             raise ValueError(f"{where}: t, a and b must be numbers, got {row}") from None
         if not all(math.isfinite(x) for x in numbers):
             raise ValueError(f"{where}: t, a and b must be finite, got {row}")
+        if kind == "usbl" and numbers[1] < 0:
+            raise ValueError(f"{where}: a usbl range (a, in m) must be >= 0, got {row}")
         if numbers[0] < last:
             raise ValueError(f"{where}: t {numbers[0]} is before the previous row's {last}")
         if math.isfinite(last) and numbers[0] - last > MAX_GAP_S:
@@ -242,7 +244,13 @@ def replay(policy: OnboardPolicy, log: SensorLog, dt: float = 0.2) -> Replay:
     policy.reset()
     times, commands, means, stds, logged = [], [], [], [], []
     for tick in ticks(log, dt):
-        command = policy.act(tick.z, tick.current, tick.ages)
+        try:
+            command = policy.act(tick.z, tick.current, tick.ages)
+        except RuntimeError as exc:  # a non-finite command: say which tick and readings
+            z, current = (", ".join(f"{x:.4g}" for x in v.tolist()) for v in (tick.z, tick.current))
+            raise RuntimeError(
+                f"at t {tick.t:g} s, readings ({z}), current ({current}): {exc}"
+            ) from None
         mean, cov = policy.filter_state
         times.append(tick.t)
         commands.append(command.clone())
