@@ -1,15 +1,22 @@
-"""The note printed on a terminal when the torch threads asked for would share their cores
-with other work (torch's threads wait for each other at every operation: a 2-thread run beside
-one busy job on 2 cores was 9x slower than 1 thread, docs/performance.md)."""
+"""The machine line of runs and results, and the note printed on a terminal when the torch
+threads asked for would share their cores with other work (torch's threads wait for each other
+at every operation: a 2-thread run beside one busy job on 2 cores was 9x slower than 1 thread,
+docs/performance.md)."""
 
 import io
+import os
 
 import pytest
 import torch
 from helpers import smoke_config
 
 from dockingrl.evaluation import machine
-from dockingrl.evaluation.machine import shared_cores_warning
+from dockingrl.evaluation.machine import (
+    cpu_model,
+    cpu_speed,
+    describe_machine,
+    shared_cores_warning,
+)
 from dockingrl.training.trainer import Trainer
 
 
@@ -65,3 +72,15 @@ def test_a_training_prints_the_note_on_a_terminal_when_its_threads_share_cores(
     finally:
         torch.set_num_threads(threads)
     assert ("note: 2 torch threads on 2 cores" in err.getvalue()) is noted
+
+
+def test_the_machine_line_tells_two_cpus_of_one_name_apart():
+    fast = "processor\t: 0\nmodel name\t: AMD EPYC\ncpu MHz\t: 2596.138\nflags\t\t: avx2 avx512f\n"
+    slow = "processor\t: 0\nmodel name\t: AMD EPYC\ncpu MHz\t\t: 1996.249\nflags\t\t: fpu avx2\n"
+    two_cores = fast + "\nprocessor\t: 1\ncpu MHz\t\t: 1400.000\nflags\t\t: fpu\n"
+    assert cpu_speed(fast) == "2.6 GHz, AVX-512"
+    assert cpu_speed(slow) == "2.0 GHz"
+    assert cpu_speed(two_cores) == "2.6 GHz, AVX-512"  # the first core's
+    assert cpu_speed("model name\t: ARM\ncpu MHz\t: unknown\n") == ""
+    line = describe_machine()
+    assert line.startswith(cpu_model()) and f"{os.cpu_count()} cores" in line

@@ -22,12 +22,37 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def describe_machine(device: torch.device | str | None = None) -> str:
-    """The CPU, its cores, torch's version and threads, and the GPU when ``device`` is CUDA."""
-    import os
+def cpu_speed(cpuinfo: str | None = None) -> str:
+    """The first core's clock and whether it has AVX-512, from ``/proc/cpuinfo`` (or the text
+    ``cpuinfo``), e.g. ``"2.6 GHz, AVX-512"``; empty where neither is known. Virtual machines
+    may name their CPU by its family alone ("AMD EPYC"), which holds machines of different
+    speeds: these two tell them apart."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return ""
+    fields = dict(
+        (key.strip(), value.strip())
+        for key, _, value in (line.partition(":") for line in reversed(cpuinfo.splitlines()))
+    )  # reversed: the first core's values win
+    parts = []
+    try:
+        parts.append(f"{float(fields['cpu MHz']) / 1000:.1f} GHz")
+    except (KeyError, ValueError):
+        pass
+    if "avx512f" in fields.get("flags", "").split():
+        parts.append("AVX-512")
+    return ", ".join(parts)
 
+
+def describe_machine(device: torch.device | str | None = None) -> str:
+    """The CPU (its model, clock and AVX-512), its cores, torch's version and threads, and the
+    GPU when ``device`` is CUDA."""
     threads = torch.get_num_threads()
-    text = f"{cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}, {threads} threads"
+    speed = cpu_speed()
+    cpu = f"{cpu_model()} ({speed})" if speed else cpu_model()
+    text = f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}, {threads} threads"
     if device is not None and torch.device(device).type == "cuda":
         text += f", GPU {torch.cuda.get_device_name(device)}"
     return text
