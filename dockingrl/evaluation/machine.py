@@ -11,14 +11,25 @@ from pathlib import Path
 import torch
 
 
+def cpu_fields(cpuinfo: str | None = None) -> dict[str, str]:
+    """The first core's ``key: value`` lines of ``/proc/cpuinfo`` (or of the text ``cpuinfo``);
+    empty where there is no such file."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return {}
+    fields: dict[str, str] = {}
+    for key, _, value in (line.partition(":") for line in cpuinfo.splitlines()):
+        fields.setdefault(key.strip(), value.strip())  # a later core's line does not replace it
+    return fields
+
+
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo``; elsewhere what :mod:`platform` says)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
+    fields = cpu_fields()
+    if "model name" in fields:
+        return fields["model name"]
     return platform.processor() or platform.machine()
 
 
@@ -27,15 +38,7 @@ def cpu_speed(cpuinfo: str | None = None) -> str:
     ``cpuinfo``), e.g. ``"2.6 GHz, AVX-512"``; empty where neither is known. Virtual machines
     may name their CPU by its family alone ("AMD EPYC"), which holds machines of different
     speeds: these two tell them apart."""
-    if cpuinfo is None:
-        try:
-            cpuinfo = Path("/proc/cpuinfo").read_text()
-        except OSError:
-            return ""
-    fields = dict(
-        (key.strip(), value.strip())
-        for key, _, value in (line.partition(":") for line in reversed(cpuinfo.splitlines()))
-    )  # reversed: the first core's values win
+    fields = cpu_fields(cpuinfo)
     parts = []
     try:
         parts.append(f"{float(fields['cpu MHz']) / 1000:.1f} GHz")
