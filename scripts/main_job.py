@@ -10,16 +10,20 @@ seed's ``config.json``, ``summary.json`` and ``eval.json`` under
 Run it from a fresh clone: ``main.sh`` installs the clone it is in. The run folders go to
 ``--runs`` (default ``runs/main_job``); a seed whose run folder already holds a
 ``summary.json`` is read, not run again (with the command's time it wrote there), so an
-interrupted call resumes at its next seed.
+interrupted call resumes at its next seed. Each seed compiles with an empty TorchInductor
+cache of its own (``TORCHINDUCTOR_CACHE_DIR``), as on a fresh machine: its compile time is
+counted, not read from an earlier run's cache.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -37,13 +41,16 @@ def run_seed(seed: int, runs: Path) -> dict:
     command_s = None
     if not (run_dir / "summary.json").exists():
         shutil.rmtree(run_dir, ignore_errors=True)  # a run cut short starts again
-        start = time.perf_counter()
-        subprocess.run(
-            ["bash", "main.sh", "--seed", str(seed), "--out", str(runs), "--run-name", f"s{seed}"],
-            cwd=ROOT,
-            check=True,
-        )
-        command_s = time.perf_counter() - start
+        with tempfile.TemporaryDirectory(prefix="inductor_") as cache:
+            start = time.perf_counter()
+            subprocess.run(
+                ["bash", "main.sh", "--seed", str(seed), "--out", str(runs)]
+                + ["--run-name", f"s{seed}"],
+                cwd=ROOT,
+                check=True,
+                env={**os.environ, "TORCHINDUCTOR_CACHE_DIR": cache},
+            )
+            command_s = time.perf_counter() - start
         write_json(run_dir / "main_job.json", {"command_s": command_s})
     elif (run_dir / "main_job.json").exists():  # run by an earlier call
         command_s = json.loads((run_dir / "main_job.json").read_text())["command_s"]

@@ -36,6 +36,7 @@ TINY = [
     "--threads",
     "1",
     "--no-progress",
+    "--no-compile",
 ]
 TINY_ALGO = {
     "sac": [
