@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set-up and the main job: train a compound-observation PPO docking policy with the `ppo`
-# recipe (dockingrl/recipes/ppo.yaml), 3 M env steps on both cores, then evaluate it on 2,000
-# episodes: 179-200 s from the start of training to the printed success rate on a 2-core AMD
+# recipe (dockingrl/recipes/ppo.yaml), 4 M env steps on both cores, then evaluate it on 2,000
+# episodes: 139-161 s from the start of training to the printed success rate on a 2-core AMD
 # EPYC, seeds 100-104 (results/main_job/). Works offline; the run folder goes under runs/. Add
 # options to change it, e.g. `bash main.sh --seed 100`.
 set -euo pipefail
