@@ -375,6 +375,29 @@ def test_main_job_reads_finished_seeds_and_lays_them_out_as_trials(tmp_path, cap
     assert "| 100 | " in (out / "table.md").read_text()
 
 
+def test_main_job_trains_each_seed_with_an_empty_compile_cache_of_its_own(tmp_path, monkeypatch):
+    """Each seed's ``bash main.sh`` compiles from an empty TorchInductor cache, as on a fresh
+    machine, which is removed afterwards; its run lands in ``--runs``."""
+    main_job = load_script("main_job.py")
+    trial = ROOT / "results" / "main_job" / "trials" / "ppo__compound__s100"
+    runs, calls = tmp_path / "runs", []
+
+    def fake_run(argv, cwd, check, env):
+        cache = Path(env["TORCHINDUCTOR_CACHE_DIR"])
+        calls.append((argv, cache, sorted(cache.iterdir())))
+        seed = argv[argv.index("--seed") + 1]
+        (runs / f"s{seed}").mkdir(parents=True)
+        for name in ("config.json", "summary.json", "eval.json"):
+            (runs / f"s{seed}" / name).write_text((trial / name).read_text())
+
+    monkeypatch.setattr(main_job.subprocess, "run", fake_run)
+    assert main_job.main(["--seeds", "100", "--runs", str(runs), "--out", str(tmp_path / "o")]) == 0
+    ((argv, cache, contents),) = calls
+    assert argv[:4] == ["bash", "main.sh", "--seed", "100"] and contents == []
+    assert not cache.exists()
+    assert json.loads((runs / "s100" / "main_job.json").read_text())["command_s"] >= 0
+
+
 def test_robust_table_compares_two_recipes_level_by_level_with_rliable(tmp_path, capsys):
     """``--compare A:B``: at each level both recipes have, P(a seed of A docks more than one of
     B) with its interval; with fewer than three seeds a side, too few to tell."""
