@@ -242,6 +242,24 @@ def test_compiled_pipeline_matches_eager():
     torch.testing.assert_close(b["next", "reward"], a["next", "reward"], rtol=1e-4, atol=1e-4)
 
 
+def test_compiling_without_a_cpp_compiler_is_refused_in_one_line(monkeypatch):
+    """torch.compile builds CPU kernels from C++: with no compiler, the env and the filter
+    refuse ``compile=True`` at construction, naming the way out, instead of failing later."""
+    import dockingrl.env.checks as checks
+
+    monkeypatch.delenv("CXX", raising=False)
+    monkeypatch.setattr(checks.shutil, "which", lambda name: None)
+    for build in (
+        lambda: make_env("compound", 2, seed=0, compile=True),
+        lambda: EKFTransform(compile=True),
+    ):
+        with pytest.raises(ValueError, match="needs a C\\+\\+ compiler.*--no-compile"):
+            build()
+    make_env("compound", 2, seed=0)  # the eager pipeline needs none
+    monkeypatch.setenv("CXX", "/opt/my/c++")  # a compiler named by CXX is taken as it is
+    checks.check_can_compile("cpu")
+
+
 def test_filter_parameters_round_trip_through_a_file(tmp_path):
     ekf = EKFTransform(learnable=True)
     with torch.no_grad():

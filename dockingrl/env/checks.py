@@ -5,6 +5,8 @@ gives."""
 from __future__ import annotations
 
 import operator
+import os
+import shutil
 
 import torch
 
@@ -96,3 +98,21 @@ def available_device(text: str, *, here: bool = True) -> str:
         if not torch.backends.mps.is_available():
             raise ValueError(f"{text!r}: MPS is not available on this machine")
     return text
+
+
+#: the C++ compilers TorchInductor looks for on a CPU, after the ``CXX`` variable
+CPP_COMPILERS = ("c++", "g++", "clang++")
+
+
+def check_can_compile(device) -> None:
+    """``torch.compile`` builds its CPU kernels from C++ at run time: on a CPU with neither
+    ``CXX`` set nor a compiler of :data:`CPP_COMPILERS` on the path, a one-line ``ValueError``
+    before anything is built (instead of TorchInductor's traceback at the first step)."""
+    if torch.device(device).type != "cpu" or os.environ.get("CXX"):
+        return
+    if not any(shutil.which(name) for name in CPP_COMPILERS):
+        raise ValueError(
+            "compile: torch.compile needs a C++ compiler on a CPU and none was found "
+            "(CXX, c++, g++, clang++): install one (e.g. the build-essential package) "
+            "or run with --no-compile"
+        )

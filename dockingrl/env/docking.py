@@ -8,7 +8,13 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
-from dockingrl.env.checks import available_device, check_finite, checked_seed, validated_action
+from dockingrl.env.checks import (
+    available_device,
+    check_can_compile,
+    check_finite,
+    checked_seed,
+    validated_action,
+)
 from dockingrl.env.config import DockingConfig, config_or_default
 from dockingrl.env.dynamics import noisy_observation, observation_from_state
 from dockingrl.env.realism_env import RealismMixin
@@ -162,6 +168,7 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
         self._make_constants()
         self._transition = self._make_transition()
         if compile_step:
+            check_can_compile(self.device)
             self._transition = torch.compile(self._transition, dynamic=False)
         n, dev = num_envs, self.device
         self._pose = torch.zeros(n, 3, device=dev, dtype=dtype)

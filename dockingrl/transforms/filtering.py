@@ -16,6 +16,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
+from dockingrl.env.checks import check_can_compile
 from dockingrl.env.dynamics import clip_action
 from dockingrl.env.realism import SENSOR_OF_ENTRY
 from dockingrl.transforms.ekf import (
@@ -180,6 +181,7 @@ class EKFTransform(NoiseParameters, Transform):
             bounds = torch.tensor([list(action_low), list(action_high)], dtype=torch.float32)
         self.register_buffer("action_bounds", bounds)
         if compile:
+            check_can_compile(next((t.device for t in self.parameters()), "cpu"))
             self.filter_step = torch.compile(self.filter_step, dynamic=False)
 
     def save_filter_params(self, path: str | Path) -> None:
