@@ -336,3 +336,14 @@ def test_no_code_branches_on_an_algorithm_name():
         if branch.search(line.split("#")[0])
     ]
     assert found == []
+
+
+def test_every_compiled_step_goes_through_the_one_compiler_check():
+    """``torch.compile`` is called in ``env/checks.py`` alone (``compiled``), so that every
+    compiled step is refused in one line where no C++ compiler would build it."""
+    callers = sorted(
+        str(path.relative_to(PACKAGE))
+        for path in PACKAGE.rglob("*.py")
+        if "torch.compile(" in path.read_text()
+    )
+    assert callers == ["env/checks.py"], callers

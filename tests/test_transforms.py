@@ -249,9 +249,13 @@ def test_compiling_without_a_cpp_compiler_is_refused_in_one_line(monkeypatch):
 
     monkeypatch.delenv("CXX", raising=False)
     monkeypatch.setattr(checks.shutil, "which", lambda name: None)
+    from dockingrl.gym.bare import DockingGymEnv
+
     for build in (
         lambda: make_env("compound", 2, seed=0, compile=True),
         lambda: EKFTransform(compile=True),
+        lambda: DockingGymEnv(compile=True),
+        lambda: checks.compiled(lambda: None, "cpu"),  # the gradient step's way in
     ):
         with pytest.raises(ValueError, match="needs a C\\+\\+ compiler.*--no-compile"):
             build()

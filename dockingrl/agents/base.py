@@ -15,6 +15,7 @@ from torchrl.objectives.value import GAE
 
 from dockingrl.agents.config import TrainConfig
 from dockingrl.agents.networks import ActorAverage
+from dockingrl.env.checks import compiled as compiled_step
 from dockingrl.io import is_count
 
 
@@ -103,7 +104,9 @@ class Agent:
         compiled = self.extra.setdefault("compiled", {})
         if name not in compiled:
             fn = getattr(self, f"_grad_{name}")
-            compiled[name] = torch.compile(fn) if self.config.compile_update else fn
+            if self.config.compile_update:
+                fn = compiled_step(fn, self.config.device)
+            compiled[name] = fn
         return compiled[name](batch)
 
     # -- checkpoints -----------------------------------------------------------------------

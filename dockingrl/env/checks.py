@@ -114,5 +114,13 @@ def check_can_compile(device) -> None:
         raise ValueError(
             "compile: torch.compile needs a C++ compiler on a CPU and none was found "
             "(CXX, c++, g++, clang++): install one (e.g. the build-essential package) "
-            "or run with --no-compile"
+            "or turn compiling off (--no-compile)"
         )
+
+
+def compiled(fn, device, **options):
+    """``torch.compile(fn, **options)`` for a function that runs on ``device``, refused in one
+    line first where it could not be built (:func:`check_can_compile`): every compiled step of
+    dockingrl (the simulation, the filter, the Gymnasium step, the gradient step) is made here."""
+    check_can_compile(device)
+    return torch.compile(fn, **options)

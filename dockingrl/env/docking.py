@@ -10,9 +10,9 @@ from torchrl.envs import EnvBase
 
 from dockingrl.env.checks import (
     available_device,
-    check_can_compile,
     check_finite,
     checked_seed,
+    compiled,
     validated_action,
 )
 from dockingrl.env.config import DockingConfig, config_or_default
@@ -168,8 +168,7 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
         self._make_constants()
         self._transition = self._make_transition()
         if compile_step:
-            check_can_compile(self.device)
-            self._transition = torch.compile(self._transition, dynamic=False)
+            self._transition = compiled(self._transition, self.device, dynamic=False)
         n, dev = num_envs, self.device
         self._pose = torch.zeros(n, 3, device=dev, dtype=dtype)
         self._velocity = torch.zeros(n, 3, device=dev, dtype=dtype)

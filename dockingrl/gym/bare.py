@@ -29,6 +29,7 @@ import torch
 from gymnasium import spaces
 from tensordict import TensorDict
 
+from dockingrl.env.checks import compiled
 from dockingrl.env.config import DockingConfig
 from dockingrl.env.docking import DockingEnv
 from dockingrl.env.specs import ACTION_DIM, OBSERVATION_DIM
@@ -173,7 +174,7 @@ class DockingGymEnv(gymnasium.Env):
                 "compile=True compiles the tensor step, fast=True steps on floats: choose one"
             )
         if compile:
-            self._step_function = torch.compile(self._tensor_step, dynamic=False)
+            self._step_function = compiled(self._tensor_step, simulator.device, dynamic=False)
         self.fast = bool(fast)
         #: the fast path's constants as floats (the simulator's float32 values) and its state
         sim = simulator

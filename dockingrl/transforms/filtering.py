@@ -16,7 +16,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
-from dockingrl.env.checks import check_can_compile
+from dockingrl.env.checks import compiled
 from dockingrl.env.dynamics import clip_action
 from dockingrl.env.realism import SENSOR_OF_ENTRY
 from dockingrl.transforms.ekf import (
@@ -181,8 +181,8 @@ class EKFTransform(NoiseParameters, Transform):
             bounds = torch.tensor([list(action_low), list(action_high)], dtype=torch.float32)
         self.register_buffer("action_bounds", bounds)
         if compile:
-            check_can_compile(next((t.device for t in self.parameters()), "cpu"))
-            self.filter_step = torch.compile(self.filter_step, dynamic=False)
+            device = next((t.device for t in self.parameters()), "cpu")
+            self.filter_step = compiled(self.filter_step, device, dynamic=False)
 
     def save_filter_params(self, path: str | Path) -> None:
         """Write ``Q`` and ``R``'s parameters to ``path`` (atomically)."""
