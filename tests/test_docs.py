@@ -339,3 +339,71 @@ def test_the_table6_page_quotes_each_recipe_s_iqm_as_table_json_gives_it():
         low, high = a["ci95"]
         figure = f"{a['iqm']:.1f} % [{low:.1f}, {high:.1f}]"
         assert figure in text, f"results/table6/README.md should quote {a['recipe']}'s IQM {figure}"
+
+
+def _code_names() -> dict[str, list]:
+    """Every class and function defined at the top of a dockingrl module, by name (a name
+    defined in several modules maps to each)."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import dockingrl
+
+    names: dict[str, list] = {}
+    for info in pkgutil.walk_packages(dockingrl.__path__, "dockingrl."):
+        if info.name.endswith("__main__"):  # runs the command line on import
+            continue
+        module = importlib.import_module(info.name)
+        for name, obj in vars(module).items():
+            if (inspect.isclass(obj) or inspect.isfunction(obj)) and obj.__module__ == info.name:
+                names.setdefault(name, []).append(obj)
+    return names
+
+
+def _resolves(reference: str, names: dict[str, list]) -> bool:
+    """Whether ``Name.attr...`` names a dockingrl class's or function's attribute, or
+    ``module.Name...`` a module's, the module named from ``dockingrl`` or from one of its
+    packages (``ekf.ekf_update``: ``dockingrl.transforms.ekf``)."""
+    import importlib
+    import pkgutil
+
+    import dockingrl
+
+    parts = reference.split(".")
+    for obj in names.get(parts[0], []):
+        for attr in parts[1:]:
+            obj = getattr(obj, attr, None)
+        if obj is not None:
+            return True
+    packages = ["dockingrl"] + [
+        info.name for info in pkgutil.iter_modules(dockingrl.__path__, "dockingrl.") if info.ispkg
+    ]
+    for package in packages:
+        for cut in range(len(parts), 0, -1):
+            try:
+                obj = importlib.import_module(f"{package}." + ".".join(parts[:cut]))
+            except ImportError:
+                continue
+            for attr in parts[cut:]:
+                obj = getattr(obj, attr, None)
+            if obj is not None:
+                return True
+            break
+    return False
+
+
+def test_the_code_that_choices_md_names_exists():
+    """The last column of docs/choices.md names where each choice lives in the code: each
+    dotted name there (``Selection.keep_candidate``, ``training.checkpointing.Checkpoints``)
+    is a class, function, method, field or module of dockingrl, so a renamed one fails here."""
+    names = _code_names()
+    missing = set()
+    for line in (ROOT / "docs" / "choices.md").read_text().splitlines():
+        if not line.startswith("|"):
+            continue
+        where = line.rstrip().rstrip("|").split("|")[-1]
+        for reference in re.findall(r"`([A-Za-z_][\w.]*\.[A-Za-z_]\w*)`", where):
+            if not reference.endswith(".py") and not _resolves(reference, names):
+                missing.add(reference)
+    assert not missing, f"docs/choices.md names code that does not exist: {sorted(missing)}"
