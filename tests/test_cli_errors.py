@@ -334,7 +334,13 @@ def test_an_output_that_is_the_command_s_own_input_is_refused(tmp_path, capsys):
         ("", "not a readable run config"),
         ("[1]", "not a run config (no algo of"),
         ('{"algo": "foo"}', "not a run config (no algo of"),
-        ('{"algo": "sac", "lr": "abc"}', "sac option lr: expected <class 'float'>, got 'abc'"),
+        ('{"algo": "ppo"}', "not a run config (no scenario, seed, total_steps)"),
+        # an eval.json or a summary.json copied in its place
+        ('{"algo": "ppo", "scenario": "compound", "seed": 10000}', "not a run config (no total"),
+        (
+            '{"algo": "sac", "scenario": "compound", "seed": 0, "total_steps": 1000, "lr": "abc"}',
+            "sac option lr: expected <class 'float'>, got 'abc'",
+        ),
     ],
 )
 def test_resuming_a_folder_with_a_broken_config_names_the_file(text, says, tmp_path, capsys):
@@ -437,3 +443,58 @@ def test_resuming_a_run_with_nothing_to_go_on_from_leaves_it_as_it_was(
     assert sorted(p.name for p in run.iterdir() if p.name != "run.lock") == sorted(
         [*before, *(["checkpoints"] if layout == "no_pointer" else [])]
     )
+
+
+def _finished_run(folder: Path) -> Path:
+    """A folder that looks like a finished training run: config, summary, final evaluation."""
+    folder.mkdir(parents=True)
+    for name in ("config.json", "summary.json", "eval.json"):
+        (folder / name).write_text("{}")
+    return folder
+
+
+def test_a_run_folder_is_refused_as_the_out_of_a_command_that_writes_an_eval(
+    tmp_path, capsys, compound_policy
+):
+    run = _finished_run(tmp_path / "run")
+    for argv in (
+        ["eval", "--policy", str(compound_policy), "--episodes", "2", "--out", str(run)],
+        ["learn-filter", "--steps", "10", "--out", str(run)],
+    ):
+        line = fails(capsys, argv, 2)
+        assert "a training run's folder" in line and str(run) in line
+    assert all((run / name).read_text() == "{}" for name in ("summary.json", "eval.json"))
+
+
+def test_a_video_path_that_is_a_folder_is_refused_before_the_evaluation(tmp_path, capsys):
+    folder = tmp_path / "clip.gif"
+    folder.mkdir()
+    argv = ["eval", "--policy", "managed_surge", "--episodes", "2", "--video", str(folder)]
+    assert "a folder; give a file's path" in fails(capsys, argv, 2)
+
+
+def test_training_into_a_finished_run_says_it_is_finished(tmp_path, capsys):
+    _finished_run(tmp_path / "done")
+    argv = ["train", "--algo", "ppo", "--out", str(tmp_path), "--run-name", "done"]
+    line = fails(capsys, argv, 1)
+    assert "already holds a finished run" in line and "--resume" not in line
+
+
+def test_grid_table_options_are_checked_before_any_trial_runs(tmp_path, capsys):
+    grid = tmp_path / "g.yaml"
+    grid.write_text(
+        f"out: {tmp_path / 'runs'}\nscenarios: [compound]\n"
+        "groups:\n  - recipes: [ppo]\n    seeds: [0]\n"
+    )
+    base = ["grid", str(grid)]
+    line = fails(capsys, [*base, "--held-out", "--prune-policies"], 2)
+    assert "--held-out, --prune-policies apply to the table: give --table DIR" in line
+    (tmp_path / "file").write_text("")
+    assert "not a folder" in fails(capsys, [*base, "--table", str(tmp_path / "file")], 2)
+    table = ["--table", str(tmp_path / "table")]
+    assert "not held out" in fails(capsys, [*base, *table, "--held-out"], 1)
+    baseline = tmp_path / "eval.json"
+    baseline.write_text("{}")
+    line = fails(capsys, [*base, *table, "--baseline", str(baseline)], 1)
+    assert "not an evaluation's eval.json" in line
+    assert not (tmp_path / "runs").exists()  # no trial ran

@@ -88,6 +88,24 @@ def output_folder(text: str) -> str:
     return text
 
 
+def results_folder(text: str) -> str:
+    """:func:`output_folder` that is not a training run's folder (its ``config.json`` beside a
+    ``summary.json`` or ``checkpoints/``), whose ``eval.json`` and ``curves.csv`` are the run's
+    own: a command that writes files of those names is refused there up front."""
+    from pathlib import Path
+
+    text = output_folder(text)
+    path = Path(text)
+    if (path / "config.json").is_file() and (
+        (path / "summary.json").is_file() or (path / "checkpoints").is_dir()
+    ):
+        raise argparse.ArgumentTypeError(
+            f"{text}: a training run's folder, whose eval.json and curves.csv are the run's "
+            "own; give another folder"
+        )
+    return text
+
+
 def output_file(text: str) -> str:
     """An argparse type: a file to write, refused up front (not after the work) when it is a
     folder or a folder above it is a file."""

@@ -14,8 +14,8 @@ from dockingrl.cli.arguments import (
     SEED,
     UsageError,
     filter_params_file,
-    output_folder,
     policy_from_args,
+    results_folder,
     torch_device,
 )
 from dockingrl.env.realism_options import VEHICLES
@@ -65,6 +65,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
         if Path(args.video).suffix.lower() not in VIDEO_SUFFIXES:
             raise UsageError(f"--video {args.video}: the suffix must be one of .gif, .mp4")
+        if Path(args.video).is_dir():
+            raise UsageError(f"--video {args.video}: a folder; give a file's path")
         _refuse_file_under_a_file("--video", Path(args.video))
     start = time.perf_counter()
     metrics = evaluate(
@@ -227,7 +229,7 @@ def add_evaluation_commands(sub) -> None:
         "(docs/vehicles.md) or either per episode",
     )
     ev.add_argument("--seed", type=SEED, default=0, help="evaluation seed")
-    ev.add_argument("--out", type=output_folder, default=None, help="results folder (JSON + PNG)")
+    ev.add_argument("--out", type=results_folder, default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
     ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")
     ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")

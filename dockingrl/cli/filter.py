@@ -21,6 +21,7 @@ from dockingrl.cli.arguments import (
     existing_file,
     integer,
     output_folder,
+    results_folder,
 )
 from dockingrl.env.levels import LEVELS
 from dockingrl.provenance import command_line, footer_text
@@ -282,7 +283,7 @@ def add_filter_commands(sub) -> None:
     )
     lf.add_argument(
         "--out",
-        type=output_folder,
+        type=results_folder,
         default="runs/filter",
         help="folder for filter_params.pt, eval.json",
     )

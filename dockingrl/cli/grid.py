@@ -10,6 +10,7 @@ from dockingrl.cli.arguments import (
     NON_NEGATIVE,
     NON_NEGATIVE_INT,
     POSITIVE,
+    UsageError,
     output_folder,
 )
 from dockingrl.provenance import command_line
@@ -20,6 +21,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
 
     whole = load_grid(args.grid, out=args.out, collect=args.collect)
     grid = select_trials(whole, args.only, args.threads)
+    check_table_options(args, [t.seed for t in whole.trials])
     if args.list:
         from dockingrl.grid import finished_trial
         from dockingrl.grid.folders import success_rate_text
@@ -66,6 +68,35 @@ def cmd_grid(args: argparse.Namespace) -> int:
         )
         print(f"table written to {args.table}")
     return 0
+
+
+def check_table_options(args: argparse.Namespace, seeds: list[int]) -> None:
+    """Refuse, before any trial runs, table options that the grid's table would refuse at the
+    end: ``--baseline``, ``--held-out`` or ``--prune-policies`` without ``--table``, a baseline
+    that is not an evaluation, and ``--held-out`` with a grid on seeds below 100."""
+    if args.table is None:
+        given = [
+            flag
+            for flag, value in (
+                ("--baseline", args.baseline),
+                ("--held-out", args.held_out),
+                ("--prune-policies", args.prune_policies),
+            )
+            if value
+        ]
+        if given:
+            raise UsageError(f"{', '.join(given)} apply to the table: give --table DIR")
+        return
+    if args.baseline is not None:
+        from pathlib import Path
+
+        from dockingrl.table.claims import read_baseline
+
+        read_baseline(Path(args.baseline))
+    if args.held_out:
+        from dockingrl.evaluation.protocol import require_held_out
+
+        require_held_out(seeds, "dockingrl grid --held-out")
 
 
 def cmd_table(args: argparse.Namespace) -> int:
@@ -140,6 +171,7 @@ def add_grid_commands(sub) -> None:
     gr.add_argument("--list", action="store_true", help="list the trials and their state, run none")
     gr.add_argument(
         "--table",
+        type=output_folder,
         default=None,
         metavar="DIR",
         help="when every trial is finished, write the table and figures there (dockingrl table)",

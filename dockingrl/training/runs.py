@@ -19,6 +19,8 @@ from dockingrl.training.trainer import Trainer, TrainingInterrupted
 #: goes on (``total_steps``: a finished run can be continued to a larger total), and how it
 #: chooses the actor it ends with (``keep_candidates``, ``select_episodes``)
 RESUME_OVERRIDES = ("threads", "device", "total_steps", "keep_candidates", "select_episodes")
+#: what every run's config.json holds beside its algo (an eval.json or a summary.json lacks some)
+RUN_CONFIG_KEYS = ("scenario", "seed", "total_steps")
 #: the overrides that config.json records (the others change how, not what, the run computes)
 _RECORDED_OVERRIDES = ("total_steps", "keep_candidates", "select_episodes")
 
@@ -110,6 +112,16 @@ def train(
     with RunLock(run_dir):
         if resume is None:
             if (run_dir / "config.json").exists():
+                if (run_dir / "summary.json").exists():
+                    more = (
+                        f", or continue it with --resume {run_dir} --total-steps N"
+                        if (run_dir / "checkpoints").is_dir()
+                        else ""
+                    )
+                    raise FileExistsError(
+                        f"{run_dir} already holds a finished run: train into another --out or "
+                        f"--run-name{more}"
+                    )
                 raise FileExistsError(f"{run_dir} already holds a run: pass --resume {run_dir}")
             write_json(run_dir / "config.json", cfg.to_dict())
             try:
@@ -135,6 +147,9 @@ def _saved_config(path: Path) -> dict:
         raise ValueError(f"{path}: not a readable run config ({exc})") from None
     if not isinstance(saved, dict) or saved.get("algo") not in CONFIGS:
         raise ValueError(f"{path}: not a run config (no algo of {', '.join(CONFIGS)})")
+    lacking = [name for name in RUN_CONFIG_KEYS if name not in saved]
+    if lacking:
+        raise ValueError(f"{path}: not a run config (no {', '.join(lacking)})")
     names = {f.name for f in fields(CONFIGS[saved["algo"]])}
     saved = {k: v for k, v in saved.items() if k in names}
     try:
