@@ -361,14 +361,11 @@ def _code_names() -> dict[str, list]:
     return names
 
 
-def _resolves(reference: str, names: dict[str, list]) -> bool:
+def _resolves(reference: str, names: dict[str, list], packages: list[str]) -> bool:
     """Whether ``Name.attr...`` names a dockingrl class's or function's attribute, or
-    ``module.Name...`` a module's, the module named from ``dockingrl`` or from one of its
-    packages (``ekf.ekf_update``: ``dockingrl.transforms.ekf``)."""
+    ``module.Name...`` a module's, the module named from one of ``packages`` (``dockingrl``
+    and its packages: ``ekf.ekf_update`` is ``dockingrl.transforms.ekf``'s)."""
     import importlib
-    import pkgutil
-
-    import dockingrl
 
     parts = reference.split(".")
     for obj in names.get(parts[0], []):
@@ -376,9 +373,6 @@ def _resolves(reference: str, names: dict[str, list]) -> bool:
             obj = getattr(obj, attr, None)
         if obj is not None:
             return True
-    packages = ["dockingrl"] + [
-        info.name for info in pkgutil.iter_modules(dockingrl.__path__, "dockingrl.") if info.ispkg
-    ]
     for package in packages:
         for cut in range(len(parts), 0, -1):
             try:
@@ -397,13 +391,20 @@ def test_the_code_that_choices_md_names_exists():
     """The last column of docs/choices.md names where each choice lives in the code: each
     dotted name there (``Selection.keep_candidate``, ``training.checkpointing.Checkpoints``)
     is a class, function, method, field or module of dockingrl, so a renamed one fails here."""
+    import pkgutil
+
+    import dockingrl
+
     names = _code_names()
+    packages = ["dockingrl"] + [
+        info.name for info in pkgutil.iter_modules(dockingrl.__path__, "dockingrl.") if info.ispkg
+    ]
     missing = set()
     for line in (ROOT / "docs" / "choices.md").read_text().splitlines():
         if not line.startswith("|"):
             continue
         where = line.rstrip().rstrip("|").split("|")[-1]
         for reference in re.findall(r"`([A-Za-z_][\w.]*\.[A-Za-z_]\w*)`", where):
-            if not reference.endswith(".py") and not _resolves(reference, names):
+            if not reference.endswith(".py") and not _resolves(reference, names, packages):
                 missing.add(reference)
     assert not missing, f"docs/choices.md names code that does not exist: {sorted(missing)}"

@@ -115,7 +115,7 @@ def train(
                 if (run_dir / "summary.json").exists():
                     more = (
                         f", or continue it with --resume {run_dir} --total-steps N"
-                        if (run_dir / "checkpoints").is_dir()
+                        if _resumable_checkpoint(run_dir)
                         else ""
                     )
                     raise FileExistsError(
@@ -169,6 +169,16 @@ def _start(cfg, run_dir, resume, progress, command) -> tuple[Trainer, bool]:
     if not restored and cfg.init_from:
         trainer.warm_start()
     return trainer, restored
+
+
+def _resumable_checkpoint(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds a checkpoint that ``--resume`` would go on from."""
+    from dockingrl.training.checkpointing import latest_checkpoint
+
+    try:
+        return latest_checkpoint(run_dir / "checkpoints") is not None
+    except ArtifactError:
+        return False
 
 
 def _check_resumable(run_dir: Path) -> None:
