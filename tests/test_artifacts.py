@@ -183,6 +183,23 @@ def test_layout_check_names_what_differs(tmp_path):
     check_layout(load_policy(tmp_path / "n.pt")[1], "no_noise", 6)
 
 
+def test_evaluate_refuses_a_ready_env_of_another_size_and_the_load_policy_pair(tmp_path):
+    from dockingrl.evaluation import evaluate
+
+    saved_policy(tmp_path / "p.pt")
+    actor, info = load_policy(tmp_path / "p.pt")
+    with pytest.raises(ArtifactError) as err:
+        evaluate(actor, make_env("noise", 2, seed=0))
+    message = str(err.value)
+    assert "\n" not in message and str(tmp_path / "p.pt") in message
+    assert "reads 12 observation numbers (observation, filtered_observation)" in message
+    assert "this env gives 6" in message and "env_options" in message
+    with pytest.raises(TypeError, match="load_policy returns the pair"):
+        evaluate((actor, info), "compound", 2)
+    # the env it was trained on is accepted
+    assert evaluate(actor, make_env("compound", 2, seed=0))["episodes"] == 2
+
+
 @pytest.mark.parametrize("hashed", [False, True])
 def test_a_crafted_policy_file_runs_no_code(tmp_path, hashed):
     path, marker = tmp_path / "policy.pt", tmp_path / "marker"

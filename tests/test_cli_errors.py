@@ -117,6 +117,10 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["train", "--recipe", "sac", "--preset", "fast"], "exclude each other"),
         (["train", "--total-steps", "256"], "--algo or --recipe is required"),
         (["eval", "--mirrored"], "--mirrored needs a saved agent"),
+        (["eval", "--map-trials", "3"], "--map-trials applies to a --map only"),
+        (["eval", "--stochastic"], "--stochastic samples a saved agent's actions"),
+        (["learn-filter", "--lags", "2"], "--lags applies to a --whiteness penalty only"),
+        (["filter-ablation", "--context-epochs", "3"], "applies to the --context-noise rows"),
         ([], "the following arguments are required: command"),
         (["evaluate"], "argument command: invalid choice: 'evaluate'"),
         (["eval", "--bogus", "3"], "unrecognized arguments: --bogus 3"),
@@ -498,3 +502,15 @@ def test_grid_table_options_are_checked_before_any_trial_runs(tmp_path, capsys):
     line = fails(capsys, [*base, *table, "--baseline", str(baseline)], 1)
     assert "not an evaluation's eval.json" in line
     assert not (tmp_path / "runs").exists()  # no trial ran
+
+
+def test_whiteness_lags_default_and_given():
+    from dockingrl.cli import build_parser
+    from dockingrl.cli.filter import _fit_options
+    from dockingrl.filter_learning import FilterFit
+
+    parse = build_parser("learn-filter").parse_args
+    given = parse(["learn-filter", "--whiteness", "1", "--lags", "2"])
+    assert _fit_options(given, "nll").lags == 2
+    default = parse(["learn-filter", "--whiteness", "1"])
+    assert _fit_options(default, "nll").lags == FilterFit().lags

@@ -58,6 +58,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(taken)
     env_kwargs = {"device": args.device, **options, **world}
     out = Path(args.out) if args.out else None
+    if args.map_trials is not None and not args.map:
+        raise UsageError("--map-trials applies to a --map only")
+    if args.stochastic and not trained:
+        raise UsageError("--stochastic samples a saved agent's actions; give --policy PATH")
     if args.video_episodes is not None and not args.video:
         raise UsageError("--video-episodes applies to a --video only")
     if args.video:
@@ -105,7 +109,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         result = success_map(
             policy,
             scenario,
-            trials=args.map_trials,
+            trials=10 if args.map_trials is None else args.map_trials,
             seed=args.seed,
             progress=not args.quiet,
             **env_kwargs,
@@ -231,7 +235,9 @@ def add_evaluation_commands(sub) -> None:
     ev.add_argument("--seed", type=SEED, default=0, help="evaluation seed")
     ev.add_argument("--out", type=results_folder, default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
-    ev.add_argument("--map-trials", type=COUNT, default=10, help="episodes per map cell")
+    ev.add_argument(
+        "--map-trials", type=COUNT, default=None, help="episodes per map cell (default 10)"
+    )
     ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")
     ev.add_argument(
         "--video",

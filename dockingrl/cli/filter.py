@@ -79,7 +79,10 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         "(see dockingrl.filter_learning.innovation_whiteness; 0: none)",
     )
     parser.add_argument(
-        "--lags", type=COUNT, default=d.lags, help="lags of the whiteness penalty (1..window-1)"
+        "--lags",
+        type=COUNT,
+        default=None,
+        help=f"lags of the whiteness penalty (1..window-1; default {d.lags})",
     )
     parser.add_argument(
         "--range-noise-from",
@@ -103,7 +106,9 @@ def _check_fit_arguments(args: argparse.Namespace) -> None:
     the window cannot hold and training rollouts that would be the held-out ones."""
     if args.steps <= args.window:
         raise UsageError(f"--steps ({args.steps}) must exceed --window ({args.window})")
-    if args.whiteness > 0 and args.lags >= args.window:
+    if args.lags is not None and not args.whiteness:
+        raise UsageError("--lags applies to a --whiteness penalty only")
+    if args.whiteness > 0 and args.lags is not None and args.lags >= args.window:
         raise UsageError(f"--lags ({args.lags}) must be below --window ({args.window})")
     from dockingrl.filter_experiments import HELD_OUT_SEED
 
@@ -125,7 +130,7 @@ def _fit_options(args: argparse.Namespace, objective: str) -> FilterFit:
         behaviour=args.behaviour,
         seed=args.seed,
         whiteness=args.whiteness if objective == "nll" else 0.0,
-        lags=args.lags,
+        lags=FilterFit().lags if args.lags is None else args.lags,
         learn_r=args.learn_r,
     )
 
@@ -185,6 +190,8 @@ def cmd_filter_ablation(args: argparse.Namespace) -> int:
 
     if args.whiteness:
         raise UsageError("--whiteness applies to learn-filter, not to the ablation table")
+    if args.context_epochs is not None and not args.context_noise:
+        raise UsageError("--context-epochs applies to the --context-noise rows only")
     _check_fit_arguments(args)
     import torch
 

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from dockingrl.agents.saving import check_actor_fits
+from dockingrl.agents.saving import check_actor_fits, check_env_fits
 from dockingrl.evaluation.episodes import Policy, base_env, episode_record, run_episodes
 from dockingrl.evaluation.machine import describe_machine
 from dockingrl.evaluation.metrics import summarize
@@ -54,6 +54,11 @@ def evaluate(
         The metrics of :func:`summarize`, plus ``scenario``, ``seed``, ``policy_mode`` and
         ``wall_clock_s``.
     """
+    if isinstance(policy, tuple):
+        raise TypeError(
+            "policy is a tuple (load_policy returns the pair (actor, info)): pass the actor, "
+            "as in `actor, info = dockingrl.load_policy(path)`"
+        )
     if isinstance(scenario, str):
         if num_episodes < 1:
             raise ValueError(f"num_episodes must be >= 1, got {num_episodes}")
@@ -63,6 +68,7 @@ def evaluate(
         name = scenario
     else:
         env, name = scenario, "custom"
+        check_env_fits(policy, env.observation_spec["observation"].shape[-1])
     start = time.perf_counter()
     outcomes = run_episodes(policy, env, progress=progress, stochastic=stochastic)
     sim = base_env(env)
