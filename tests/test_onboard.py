@@ -152,6 +152,10 @@ def test_onboard_policy_refuses_bad_readings():
             policy.reset(mask)
     with pytest.raises(ValueError, match="unknown scenario"):
         OnboardPolicy(random_actor("sac", "noise"), "noisy")
+    with pytest.raises(TypeError, match="load_policy returns the pair"):
+        OnboardPolicy((random_actor("sac", "noise"), {}), "noise")
+    with pytest.raises(TypeError, match="actor must be a module"):
+        OnboardPolicy(None, "noise")
     with pytest.raises(ValueError, match="no filter"):
         OnboardPolicy(random_actor("sac", "noise"), "noise", filter_params="x.pt")
 

@@ -205,6 +205,15 @@ class OnboardPolicy(nn.Module):
         k_w: float = 2.5,
     ) -> None:
         super().__init__()
+        if isinstance(actor, tuple):
+            raise TypeError(
+                "actor is a tuple (load_policy returns the pair (actor, info)): pass the actor, "
+                "or use OnboardPolicy.from_file(path)"
+            )
+        if not callable(actor):
+            raise TypeError(
+                f"actor must be a module that maps observations to commands, got {actor!r}"
+            )
         if scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
         self.scenario, self.observe_current = scenario, observe_current
