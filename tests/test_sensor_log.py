@@ -210,3 +210,25 @@ def test_the_export_command_writes_onnx(tmp_path, capsys):
     ):
         with pytest.raises(SystemExit, match="ends in"):
             main(["export", "--policy", policy_file, *bad])
+
+
+def test_the_export_silences_the_exporters_own_warnings_only_while_it_runs():
+    import logging
+    import warnings
+
+    from dockingrl.onboard.export import _quiet_exporter
+
+    registration = logging.getLogger("torch.onnx._internal.exporter._registration")
+    ir = logging.getLogger("onnx_ir._convenience")
+    before = [registration.getEffectiveLevel(), ir.getEffectiveLevel()]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with _quiet_exporter():
+            assert not registration.isEnabledFor(logging.WARNING)
+            assert not ir.isEnabledFor(logging.WARNING) and ir.isEnabledFor(logging.ERROR)
+            warnings.warn("deprecated inside torch", FutureWarning, stacklevel=1)
+        assert not caught
+        warnings.warn("after the export", FutureWarning, stacklevel=1)
+        assert len(caught) == 1
+    assert [registration.getEffectiveLevel(), ir.getEffectiveLevel()] == before
+    assert before[0] <= logging.WARNING

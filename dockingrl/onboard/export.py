@@ -6,7 +6,10 @@ Python). The filter's state is an explicit input and output of either (docs/onbo
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import logging
+import warnings
 from pathlib import Path
 
 import torch
@@ -67,6 +70,24 @@ def onnx_names(policy: OnboardPolicy) -> tuple[list[str], list[str]]:
     return inputs, outputs
 
 
+@contextlib.contextmanager
+def _quiet_exporter():
+    """Silence what torch.onnx's exporter and onnx_ir log about themselves while exporting
+    (torchvision's operators it skips, a deprecation inside torch, a defaulted attribute
+    type): warnings about the exporter, not about the policy. Errors still raise."""
+    loggers = [logging.getLogger(name) for name in ("torch.onnx", "onnx_ir", "onnxscript")]
+    levels = [logger.level for logger in loggers]
+    try:
+        for logger in loggers:
+            logger.setLevel(logging.ERROR)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
 def export_onnx(policy: OnboardPolicy, path: str | Path, batch: int = 1) -> Path:
     """Write ``policy``'s whole onboard step as one ONNX program (opset :data:`ONNX_OPSET`) for
     ``batch`` vehicles, float32 throughout:
@@ -91,7 +112,7 @@ def export_onnx(policy: OnboardPolicy, path: str | Path, batch: int = 1) -> Path
     step = _frozen_step(policy)
 
     def write(tmp: Path) -> None:
-        with torch.no_grad():
+        with torch.no_grad(), _quiet_exporter():
             program = torch.onnx.export(
                 step,
                 example,
