@@ -305,6 +305,9 @@ def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, ca
         assert f"argument --out: {tmp_path}: a folder; give a file's path" in line
         line = fails(capsys, [*argv, "--out", str(afile / "log.csv")], 2)
         assert f"argument --out: {afile / 'log.csv'}: cannot be written ({afile} is a file)" in line
+        line = fails(capsys, [*argv, "--out", str(tmp_path / "log.txt")], 2)
+        assert f"argument --out: {tmp_path / 'log.txt'}: a CSV file; its name must end" in line
+        assert not (tmp_path / "log.txt").exists()
     said = fails(capsys, ["record-log", "--policy", "p.pt", "--out", "x.csv", "--seed", "-1"], 2)
     assert "argument --seed: must be an integer >= 0" in said
     said = fails(capsys, ["replay", "--policy", "p.pt", "--log", "nolog.csv", "--out", "x.csv"], 1)

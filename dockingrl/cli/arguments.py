@@ -122,6 +122,16 @@ def output_file(text: str) -> str:
     return text
 
 
+def csv_file(text: str) -> str:
+    """An argparse type: a CSV file to write (:func:`output_file`, whose name ends in .csv)."""
+    from pathlib import Path
+
+    output_file(text)
+    if Path(text).suffix.lower() != ".csv":
+        raise argparse.ArgumentTypeError(f"{text}: a CSV file; its name must end in .csv")
+    return text
+
+
 def distinct_output(out: str, **inputs: str) -> None:
     """``UsageError`` when the file ``out`` would be written over one of the command's
     ``inputs`` (option name -> path): a replay's commands over its log, a log over its policy."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from dockingrl.cli.arguments import SEED, UsageError, distinct_output, output_file
+from dockingrl.cli.arguments import SEED, UsageError, csv_file, distinct_output
 
 
 def _policy_and_config(args: argparse.Namespace):
@@ -70,7 +70,7 @@ def add_onboard_commands(sub) -> None:
         help="fly one simulated approach and write the sensor log the vehicle received",
     )
     rec.add_argument("--seed", type=SEED, default=0, help="the approach's seed")
-    rec.add_argument("--out", type=output_file, required=True, help="the log's file (.csv)")
+    rec.add_argument("--out", type=csv_file, required=True, help="the log's file (.csv)")
     rec.set_defaults(func=cmd_record_log)
     rep = sub.add_parser(
         "replay",
@@ -79,5 +79,5 @@ def add_onboard_commands(sub) -> None:
         "its uncertainty",
     )
     rep.add_argument("--log", required=True, help="a sensor log (docs/onboard.md)")
-    rep.add_argument("--out", type=output_file, required=True, help="the commands' file (.csv)")
+    rep.add_argument("--out", type=csv_file, required=True, help="the commands' file (.csv)")
     rep.set_defaults(func=cmd_replay)
