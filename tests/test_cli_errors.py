@@ -315,7 +315,8 @@ def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, ca
 
 
 def test_an_output_that_is_the_command_s_own_input_is_refused(tmp_path, capsys):
-    log, policy = tmp_path / "log.csv", tmp_path / "p.pt"
+    # a policy file may have any name: one ending in .csv passes the --out suffix check
+    log, policy = tmp_path / "log.csv", tmp_path / "p.csv"
     log.write_text("kept")
     policy.write_text("kept")
     for argv, flag, path in (
@@ -326,7 +327,13 @@ def test_an_output_that_is_the_command_s_own_input_is_refused(tmp_path, capsys):
             policy,
         ),
         (
-            ["record-log", "--policy", str(policy), "--out", f"{tmp_path}/../{tmp_path.name}/p.pt"],
+            [
+                "record-log",
+                "--policy",
+                str(policy),
+                "--out",
+                f"{tmp_path}/../{tmp_path.name}/p.csv",
+            ],
             "policy",
             policy,
         ),

@@ -268,22 +268,6 @@ def check_actor_fits(actor, scenario: str, obs_dim: int, options: Mapping) -> No
         check_options_layout(trained, scenario, obs_dim, options)
 
 
-def check_env_fits(actor, obs_dim: int) -> None:
-    """For an actor from :func:`load_policy` and a ready env whose observation has ``obs_dim``
-    numbers: check that it is the size the actor was trained on (a built env does not say which
-    entries it holds, so only the size is checked). Any other policy passes unchecked."""
-    trained = getattr(actor, "trained_on", None)
-    if trained is None:
-        return
-    layout = trained["observation_layout"]
-    if int(obs_dim) != layout["obs_dim"]:
-        raise ArtifactError(
-            f"{trained['path']}: the policy reads {layout['obs_dim']} observation numbers "
-            f"({', '.join(layout['keys'])}), this env gives {int(obs_dim)}; build the env with "
-            "load_policy's info['env_options']"
-        )
-
-
 def _rebuild(path, payload: dict) -> torch.nn.Module:
     """The actor of a checked policy payload, its weights loaded."""
     from dockingrl.agents.config import CONFIGS

@@ -10,12 +10,28 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from dockingrl.agents.saving import check_actor_fits, check_env_fits
+from dockingrl.agents.saving import check_actor_fits
 from dockingrl.evaluation.episodes import Policy, base_env, episode_record, run_episodes
 from dockingrl.evaluation.machine import describe_machine
 from dockingrl.evaluation.metrics import summarize
-from dockingrl.io import write_json
+from dockingrl.io import ArtifactError, write_json
 from dockingrl.scenarios import make_env
+
+
+def check_env_fits(actor, obs_dim: int) -> None:
+    """For an actor from :func:`load_policy` and a ready env whose observation has ``obs_dim``
+    numbers: check that it is the size the actor was trained on (a built env does not say which
+    entries it holds, so only the size is checked). Any other policy passes unchecked."""
+    trained = getattr(actor, "trained_on", None)
+    if trained is None:
+        return
+    layout = trained["observation_layout"]
+    if int(obs_dim) != layout["obs_dim"]:
+        raise ArtifactError(
+            f"{trained['path']}: the policy reads {layout['obs_dim']} observation numbers "
+            f"({', '.join(layout['keys'])}), this env gives {int(obs_dim)}; build the env with "
+            "load_policy's info['env_options']"
+        )
 
 
 def evaluate(
