@@ -82,7 +82,7 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["eval", "--map-trials", "0"], "argument --map-trials: must be an integer >= 1"),
         (["eval", "--seed", "-1"], "argument --seed: must be an integer >= 0"),
         (["eval", "--speed-tolerance", "nan"], "argument --speed-tolerance: must be a finite"),
-        (["eval", "--range-noise-scale", "0"], "argument --range-noise-scale: must be > 0"),
+        (["eval", "--range-noise-scale", "-1"], "argument --range-noise-scale: must be >= 0"),
         (["eval", "--bearing-noise-scale", "inf"], "must be a finite number, got 'inf'"),
         (["eval", "--episodes", "ten"], "argument --episodes: expected an integer, got 'ten'"),
         (["eval", "--device", "gpu0"], "argument --device: not a torch device: 'gpu0'"),

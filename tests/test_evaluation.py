@@ -276,3 +276,11 @@ def test_a_trained_policy_is_named_by_its_recipe_else_its_algorithm(monkeypatch)
     }
     monkeypatch.setattr(saving, "load_policy", lambda spec, device="cpu": (loaded[0], without))
     assert resolve_policy(str(path))[1] == "sac"
+
+
+def test_eval_takes_noise_free_usbl_readings_as_training_does(tmp_path):
+    """A noise scale of 0 (the USBL's readings exact) is accepted by eval as by training."""
+    out = tmp_path / "exact"
+    argv = ["eval", "--range-noise-scale", "0", "--bearing-noise-scale", "0", "--episodes", "8"]
+    assert cli_main([*argv, "--seed", "3", "--out", str(out), "--quiet"]) == 0
+    assert json.loads((out / "eval.json").read_text())["episodes"] == 8

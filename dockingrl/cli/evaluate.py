@@ -10,7 +10,6 @@ from pathlib import Path
 from dockingrl.cli.arguments import (
     COUNT,
     NON_NEGATIVE,
-    POSITIVE,
     SEED,
     UsageError,
     filter_params_file,
@@ -272,9 +271,10 @@ def add_evaluation_commands(sub) -> None:
     for sensor in ("range", "bearing"):
         ev.add_argument(
             f"--{sensor}-noise-scale",
-            type=POSITIVE,
+            type=NON_NEGATIVE,
             default=None,
-            help=f"env's USBL {sensor} noise x this; default: the agent's training value (1)",
+            help=f"env's USBL {sensor} noise x this (0: none, as training accepts; at most 5); "
+            "default: the agent's training value (1)",
         )
     ev.add_argument(
         "--stochastic",
