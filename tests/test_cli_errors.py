@@ -120,6 +120,7 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["eval", "--map-trials", "3"], "--map-trials applies to a --map only"),
         (["eval", "--stochastic"], "--stochastic samples a saved agent's actions"),
         (["learn-filter", "--lags", "2"], "--lags applies to a --whiteness penalty only"),
+        (["learn-filter", "--whiteness", "1", "--window", "4"], "--lags (5) must be below"),
         (["filter-ablation", "--context-epochs", "3"], "applies to the --context-noise rows"),
         ([], "the following arguments are required: command"),
         (["evaluate"], "argument command: invalid choice: 'evaluate'"),

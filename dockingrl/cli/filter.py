@@ -108,8 +108,9 @@ def _check_fit_arguments(args: argparse.Namespace) -> None:
         raise UsageError(f"--steps ({args.steps}) must exceed --window ({args.window})")
     if args.lags is not None and not args.whiteness:
         raise UsageError("--lags applies to a --whiteness penalty only")
-    if args.whiteness > 0 and args.lags is not None and args.lags >= args.window:
-        raise UsageError(f"--lags ({args.lags}) must be below --window ({args.window})")
+    lags = _fit_options(args, "nll").lags
+    if args.whiteness > 0 and lags >= args.window:
+        raise UsageError(f"--lags ({lags}) must be below --window ({args.window})")
     from dockingrl.filter_experiments import HELD_OUT_SEED
 
     if args.seed == HELD_OUT_SEED:
