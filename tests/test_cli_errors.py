@@ -78,6 +78,8 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
     [
         (["eval", "--episodes", "0"], "argument --episodes: must be an integer >= 1, got '0'"),
         (["eval", "--episodes", "-5"], "argument --episodes: must be an integer >= 1"),
+        (["eval", "--episodes", "200000000"], "--episodes: must be an integer <= 1000000"),
+        (["stress", "--episodes", "2000000"], "--episodes: must be an integer <= 1000000"),
         (["eval", "--threads", "0"], "argument --threads: must be an integer >= 1, got '0'"),
         (["eval", "--map-trials", "0"], "argument --map-trials: must be an integer >= 1"),
         (["eval", "--seed", "-1"], "argument --seed: must be an integer >= 0"),

@@ -67,6 +67,8 @@ def number(*, above: float | None = None, minimum: float | None = None) -> Calla
 #: the usual argparse types: a count of at least 1, a count of at least 0, a seed, a finite
 #: number, a positive one and a non-negative one
 COUNT = integer(1)
+#: an evaluation runs its episodes as one batch, about 1 kB of memory each: a million at most
+EPISODES = integer(1, 1_000_000)
 NON_NEGATIVE_INT = integer(0)
 SEED = integer(0, MAX_SEED)
 FINITE = number()

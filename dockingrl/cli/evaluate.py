@@ -9,6 +9,7 @@ from pathlib import Path
 
 from dockingrl.cli.arguments import (
     COUNT,
+    EPISODES,
     NON_NEGATIVE,
     SEED,
     UsageError,
@@ -223,7 +224,9 @@ def add_evaluation_commands(sub) -> None:
         default=None,
         help="default: the agent's training scenario, or 'noise' for the controller",
     )
-    ev.add_argument("--episodes", type=COUNT, default=500, help="number of episodes (paper: 500)")
+    ev.add_argument(
+        "--episodes", type=EPISODES, default=500, help="number of episodes (paper: 500)"
+    )
     ev.add_argument(
         "--vehicle",
         choices=list(VEHICLES),

@@ -7,6 +7,7 @@ import time
 
 from dockingrl.cli.arguments import (
     COUNT,
+    EPISODES,
     POSITIVE,
     SEED,
     UsageError,
@@ -77,7 +78,7 @@ def add_stress_command(sub) -> None:
     )
     st.add_argument("--policy", default="managed_surge", help="'managed_surge' or a policy.pt")
     st.add_argument("--scenario", help="scenario (default: the policy's, or noise)")
-    st.add_argument("--episodes", type=COUNT, default=1000, help="episodes a level")
+    st.add_argument("--episodes", type=EPISODES, default=1000, help="episodes a level")
     st.add_argument("--levels", help=f"comma-separated levels (default: {','.join(LEVELS)})")
     st.add_argument("--seed", type=SEED, default=0)
     st.add_argument(
