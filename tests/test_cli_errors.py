@@ -111,6 +111,8 @@ def test_a_missing_policy_file_is_one_line(tmp_path, capsys):
         (["grid", "table6", "--hours", "-1"], "argument --hours: must be >= 0"),
         (["train", "--algo", "ppo", "--scenario", "calm"], "PPOConfig.scenario: unknown"),
         (["train", "--algo", "ppo", "--threads", "0"], "PPOConfig.threads: must be >= 1"),
+        (["train", "--recipe", "ppo", "--final-eval-episodes", "200000000"], "must be <= 1000000"),
+        (["train", "--algo", "sac", "--num-envs", "5000000"], "SACConfig.num_envs: must be <="),
         (["train", "--algo", "sac", "--total-steps", "0"], "SACConfig.total_steps: must be"),
         (["train", "--algo", "sac", "--lr", "nan"], "SACConfig.lr: must be finite"),
         (["train", "--algo", "sac", "--total-steps", "5000"], "--start-steps 10000 >= --total"),

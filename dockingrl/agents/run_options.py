@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from dockingrl.agents.option_fields import check_ranges, documented, refuse
-from dockingrl.env.bounds import MAX_SEED
+from dockingrl.env.bounds import MAX_BATCH, MAX_SEED
 
 LOGGERS = ("wandb", "csv", "none")
 
@@ -105,6 +105,9 @@ class RunOptions:
         )
         if self.seed > MAX_SEED:
             refuse(self, "seed", f"must be <= {MAX_SEED}")
+        for name in ("num_envs", "eval_episodes", "final_eval_episodes", "select_episodes"):
+            if getattr(self, name) > MAX_BATCH:
+                refuse(self, name, f"must be <= {MAX_BATCH}: one batch, about 1 kB of memory each")
         if (
             not isinstance(self.run_name, str)
             or any(c in self.run_name for c in "/\\")

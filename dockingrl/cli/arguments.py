@@ -8,7 +8,7 @@ import argparse
 import math
 from collections.abc import Callable
 
-from dockingrl.env.bounds import MAX_SEED
+from dockingrl.env.bounds import MAX_BATCH, MAX_SEED
 
 
 class UsageError(ValueError):
@@ -67,8 +67,7 @@ def number(*, above: float | None = None, minimum: float | None = None) -> Calla
 #: the usual argparse types: a count of at least 1, a count of at least 0, a seed, a finite
 #: number, a positive one and a non-negative one
 COUNT = integer(1)
-#: an evaluation runs its episodes as one batch, about 1 kB of memory each: a million at most
-EPISODES = integer(1, 1_000_000)
+EPISODES = integer(1, MAX_BATCH)  # an evaluation's episodes run as one batch
 NON_NEGATIVE_INT = integer(0)
 SEED = integer(0, MAX_SEED)
 FINITE = number()

@@ -10,6 +10,10 @@ from typing import NamedTuple
 #: the largest seed a user gives (``--seed``, a config's ``seed``): every seed derived from it
 #: (evaluation episodes, the realism draws) still fits the envs' 64-bit generators
 MAX_SEED = 2**32 - 1
+#: the most envs or evaluation episodes one batch may hold (``--episodes``, a config's
+#: ``num_envs`` and ``*_episodes``): about 1 kB of memory each, so a mistyped count is refused
+#: rather than met by the kernel's out-of-memory killer
+MAX_BATCH = 1_000_000
 
 
 def is_real(value) -> bool:
