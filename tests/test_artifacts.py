@@ -196,6 +196,9 @@ def test_evaluate_refuses_a_ready_env_of_another_size_and_the_load_policy_pair(t
     assert "this env gives 6" in message and "env_options" in message
     with pytest.raises(TypeError, match="load_policy returns the pair"):
         evaluate((actor, info), "compound", 2)
+    for episodes in (0, 2_000_000):
+        with pytest.raises(ValueError, match=r"num_episodes must lie in \[1, 1000000\]"):
+            evaluate(actor, "compound", episodes)
     # the env it was trained on is accepted
     assert evaluate(actor, make_env("compound", 2, seed=0))["episodes"] == 2
 

@@ -11,6 +11,7 @@ import torch
 from torchrl.envs import EnvBase
 
 from dockingrl.agents.saving import check_actor_fits
+from dockingrl.env.bounds import MAX_BATCH
 from dockingrl.evaluation.episodes import Policy, base_env, episode_record, run_episodes
 from dockingrl.evaluation.machine import describe_machine
 from dockingrl.evaluation.metrics import summarize
@@ -76,8 +77,8 @@ def evaluate(
             "as in `actor, info = dockingrl.load_policy(path)`"
         )
     if isinstance(scenario, str):
-        if num_episodes < 1:
-            raise ValueError(f"num_episodes must be >= 1, got {num_episodes}")
+        if not 1 <= num_episodes <= MAX_BATCH:
+            raise ValueError(f"num_episodes must lie in [1, {MAX_BATCH}], got {num_episodes}")
         env = make_env(scenario, num_episodes, seed=seed, device=device, **env_kwargs)
         obs_dim = env.observation_spec["observation"].shape[-1]
         check_actor_fits(policy, scenario, obs_dim, env_kwargs)
