@@ -107,7 +107,7 @@ class RunOptions:
             refuse(self, "seed", f"must be <= {MAX_SEED}")
         for name in ("num_envs", "eval_episodes", "final_eval_episodes", "select_episodes"):
             if getattr(self, name) > MAX_BATCH:
-                refuse(self, name, f"must be <= {MAX_BATCH}: one batch, about 1 kB of memory each")
+                refuse(self, name, f"must be <= {MAX_BATCH}: the envs of one batch")
         if (
             not isinstance(self.run_name, str)
             or any(c in self.run_name for c in "/\\")

@@ -11,8 +11,9 @@ from typing import NamedTuple
 #: (evaluation episodes, the realism draws) still fits the envs' 64-bit generators
 MAX_SEED = 2**32 - 1
 #: the most envs or evaluation episodes one batch may hold (``--episodes``, a config's
-#: ``num_envs`` and ``*_episodes``): about 1 kB of memory each, so a mistyped count is refused
-#: rather than met by the kernel's out-of-memory killer
+#: ``num_envs`` and ``*_episodes``): an evaluation's episode takes about 1 kB of memory, a
+#: training env more (its rollout), so a mistyped count is refused rather than met by the
+#: kernel's out-of-memory killer
 MAX_BATCH = 1_000_000
 
 
