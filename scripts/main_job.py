@@ -5,9 +5,10 @@ training seed + 10,000). Writes ``main_job.json`` and ``table.md`` in ``--out``,
 seed's ``config.json``, ``summary.json`` and ``eval.json`` under
 ``--out/trials/RECIPE__SCENARIO__s<seed>/`` (as a grid's trials, checked against their recipe).
 
-    python scripts/main_job.py --seeds 100 101 102 103 104 --out results/main_job
+    bash scripts/install.sh && python scripts/main_job.py --seeds 100 101 102 103 104 --out OUT
 
-Run it from a fresh clone: ``main.sh`` installs the clone it is in. The run folders go to
+Run it from a fresh clone, installed first (the script itself imports dockingrl; ``main.sh``
+installs the clone it is in again for each seed). The run folders go to
 ``--runs`` (default ``runs/main_job``); a seed whose run folder already holds a
 ``summary.json`` is read, not run again (with the command's time it wrote there), so an
 interrupted call resumes at its next seed. Each seed compiles with an empty TorchInductor
