@@ -128,9 +128,12 @@ def test_a_recipe_file_and_overrides(tmp_path):
         ("algo: sac\nrecipe_of: x\n", "unknown key"),
         ("[1, 2]\n", "expected a mapping"),
         ("base: sac\nalgo: ppo\n", "differs from its base's"),
-        ("base: no-such-recipe\n", "unknown recipe 'no-such-recipe'"),
+        ("base: no-such-recipe\n", "its base: unknown recipe 'no-such-recipe'"),
         ("algo: sac\nconfig: [\n", "not valid YAML"),
-        ("algo: sac\nfirst_stage: no-such-recipe\n", "unknown recipe 'no-such-recipe'"),
+        (
+            "algo: sac\nfirst_stage: no-such-recipe\n",
+            "its first_stage: unknown recipe 'no-such-recipe'",
+        ),
         ("algo: sac\nfirst_stage: ppo\n", "first_stage 'ppo' is a ppo recipe, not sac"),
     ],
 )

@@ -119,7 +119,7 @@ def load_recipe(spec: str | Path, _depth: int = 0, *, check: bool = True) -> Rec
         raise ValueError(f"recipe {spec}: unknown key(s) {', '.join(map(str, extra))}")
     base = None
     if data.get("base") is not None:
-        base = load_recipe(_beside(spec, str(data["base"])), _depth + 1)
+        base = _load_part(spec, "base", _beside(spec, str(data["base"])), _depth)
         if data.get("algo", base.algo) != base.algo:
             raise ValueError(
                 f"recipe {spec}: algo {data['algo']!r} differs from its base's ({base.algo!r})"
@@ -136,7 +136,7 @@ def load_recipe(spec: str | Path, _depth: int = 0, *, check: bool = True) -> Rec
     if data.get("first_stage") is not None:
         first_stage = _beside(spec, str(data["first_stage"]))
     if first_stage:
-        stage = load_recipe(first_stage, _depth + 1)
+        stage = _load_part(spec, "first_stage", first_stage, _depth)
         if stage.algo != algo:
             raise ValueError(
                 f"recipe {spec}: first_stage {first_stage!r} is a {stage.algo} recipe, not {algo}"
@@ -149,6 +149,17 @@ def load_recipe(spec: str | Path, _depth: int = 0, *, check: bool = True) -> Rec
     except (TypeError, ValueError) as exc:
         raise ValueError(f"recipe {spec}: {exc}") from None
     return recipe
+
+
+def _load_part(spec: str, key: str, part: str, depth: int) -> Recipe:
+    """The recipe that ``spec``'s ``key`` (``base`` or ``first_stage``) names; an unknown one is
+    refused naming ``spec`` and ``key``, so that the error points at the file to fix."""
+    try:
+        return load_recipe(part, depth + 1)
+    except ValueError as exc:
+        if str(exc).startswith("unknown recipe"):
+            raise ValueError(f"recipe {spec}: its {key}: {exc}") from None
+        raise
 
 
 __all__ = ["Recipe", "load_recipe", "recipe_names"]
