@@ -59,7 +59,7 @@ TINY_ALGO = {
         keep_candidates=2,
     ),
     # the recipe's compiled env and filter steps would take most of the test's time to build
-    "ppo": dict(total_steps=2400, steps_per_env=100, minibatch_size=100, epochs=2, compile=False),
+    "ppo": dict(total_steps=2400, steps_per_env=50, minibatch_size=100, epochs=2, compile=False),
 }
 
 

@@ -20,7 +20,7 @@ from dockingrl.grid.folders import finished_summary
 ROOT = Path(__file__).resolve().parents[1]
 
 TINY_PPO = (
-    "{total_steps: 2400, num_envs: 4, steps_per_env: 100, minibatch_size: 100, epochs: 2, "
+    "{total_steps: 2400, num_envs: 4, steps_per_env: 50, minibatch_size: 100, epochs: 2, "
     "hidden: [32, 32], eval_every: 2400, eval_episodes: 2, final_eval_episodes: 4, "
     "select_episodes: 4, checkpoint_every: 800, logger: none}"
 )

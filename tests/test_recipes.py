@@ -50,7 +50,7 @@ TINY_ALGO = {
         "200",
         "--no-compile-update",
     ],
-    "ppo": ["--total-steps", "1600", "--steps-per-env", "100", "--minibatch-size", "100"],
+    "ppo": ["--total-steps", "1600", "--steps-per-env", "32", "--minibatch-size", "64"],
 }
 TINY_ALGO["td3"] = TINY_ALGO["sac"]
 
