@@ -1,3 +1,4 @@
+import inspect
 import json
 
 import pytest
@@ -284,3 +285,10 @@ def test_eval_takes_noise_free_usbl_readings_as_training_does(tmp_path):
     argv = ["eval", "--range-noise-scale", "0", "--bearing-noise-scale", "0", "--episodes", "8"]
     assert cli_main([*argv, "--seed", "3", "--out", str(out), "--quiet"]) == 0
     assert json.loads((out / "eval.json").read_text())["episodes"] == 8
+
+
+def test_eval_help_states_success_map_s_own_default_trials(capsys):
+    with pytest.raises(SystemExit):
+        cli_main(["eval", "--help"])
+    default = inspect.signature(success_map).parameters["trials"].default
+    assert f"default {default}, success_map's" in " ".join(capsys.readouterr().out.split())

@@ -222,6 +222,16 @@ def _check_config(path, algo: str, config: dict) -> None:
         raise ArtifactError(f"{path}: its config: {first_line(exc)}") from None
 
 
+def reject_policy_pair(actor, name: str, hint: str) -> None:
+    """Raise one ``TypeError`` when ``actor`` is the ``(actor, info)`` pair that
+    :func:`load_policy` returns rather than its actor; ``hint`` says what to pass instead."""
+    if isinstance(actor, tuple):
+        raise TypeError(
+            f"{name} is a tuple (load_policy returns the pair (actor, info)): pass the actor, "
+            f"{hint}"
+        )
+
+
 def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     """Rebuild a saved actor. Returns ``(actor, info)`` where ``info`` has ``algo``,
     ``scenario``, ``config``, ``metadata``, ``observation_layout`` (see :func:`check_layout`),

@@ -109,9 +109,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         result = success_map(
             policy,
             scenario,
-            trials=10 if args.map_trials is None else args.map_trials,
             seed=args.seed,
             progress=not args.quiet,
+            **({} if args.map_trials is None else {"trials": args.map_trials}),
             **env_kwargs,
         )
         result.update(policy=args.policy, command=command_line())
@@ -238,7 +238,10 @@ def add_evaluation_commands(sub) -> None:
     ev.add_argument("--out", type=results_folder, default=None, help="results folder (JSON + PNG)")
     ev.add_argument("--map", action="store_true", help="also the 9x9 success map (Figure 9)")
     ev.add_argument(
-        "--map-trials", type=COUNT, default=None, help="episodes per map cell (default 10)"
+        "--map-trials",
+        type=COUNT,
+        default=None,
+        help="episodes per map cell (default 10, success_map's)",
     )
     ev.add_argument("--trajectories", action="store_true", help="also Figure-10 trajectories")
     ev.add_argument(

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from dockingrl.agents.saving import check_actor_fits
+from dockingrl.agents.saving import check_actor_fits, reject_policy_pair
 from dockingrl.env.bounds import MAX_BATCH
 from dockingrl.evaluation.episodes import Policy, base_env, episode_record, run_episodes
 from dockingrl.evaluation.machine import describe_machine
@@ -71,11 +71,7 @@ def evaluate(
         The metrics of :func:`summarize`, plus ``scenario``, ``seed``, ``policy_mode`` and
         ``wall_clock_s``.
     """
-    if isinstance(policy, tuple):
-        raise TypeError(
-            "policy is a tuple (load_policy returns the pair (actor, info)): pass the actor, "
-            "as in `actor, info = dockingrl.load_policy(path)`"
-        )
+    reject_policy_pair(policy, "policy", "as in `actor, info = dockingrl.load_policy(path)`")
     if isinstance(scenario, str):
         if not 1 <= num_episodes <= MAX_BATCH:
             raise ValueError(f"num_episodes must lie in [1, {MAX_BATCH}], got {num_episodes}")

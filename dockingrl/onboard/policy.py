@@ -205,11 +205,9 @@ class OnboardPolicy(nn.Module):
         k_w: float = 2.5,
     ) -> None:
         super().__init__()
-        if isinstance(actor, tuple):
-            raise TypeError(
-                "actor is a tuple (load_policy returns the pair (actor, info)): pass the actor, "
-                "or use OnboardPolicy.from_file(path)"
-            )
+        from dockingrl.agents.saving import reject_policy_pair
+
+        reject_policy_pair(actor, "actor", "or use OnboardPolicy.from_file(path)")
         if not callable(actor):
             raise TypeError(
                 f"actor must be a module that maps observations to commands, got {actor!r}"
