@@ -30,8 +30,8 @@ def resolve_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
         return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}, {}
     if not Path(spec).exists():
         raise FileNotFoundError(f"policy {spec!r}: neither 'managed_surge' nor a file")
+    from dockingrl.agents.layout import pipeline_options
     from dockingrl.agents.saving import load_policy as load_saved
-    from dockingrl.agents.saving import pipeline_options
 
     policy, meta = load_saved(spec, device=device)
     options = pipeline_options(meta["config"])
@@ -53,7 +53,7 @@ def evaluation_world(
     and the learned filter the policy was trained with (``info`` of the saved policy), unless
     given (``filter_params="none"``: Table 1's filter); and a line saying what was taken from
     the policy. ``vehicle``: the vehicle flown (:attr:`DockingConfig.vehicle`)."""
-    from dockingrl.agents.saving import saved_config, training_filter
+    from dockingrl.agents.layout import saved_config, training_filter
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
     trained = saved_config(info["config"]) if info else None
@@ -91,7 +91,7 @@ def trained_filter_options(trained: dict, scenario: str, options: dict) -> dict:
     """``options`` (the make_env options of a saved policy, ``info`` ``trained``) checked
     against ``scenario``'s observation, with the learned filter the policy was trained with
     where ``scenario`` filters."""
-    from dockingrl.agents.saving import training_filter
+    from dockingrl.agents.layout import training_filter
     from dockingrl.onboard import check_env_layout
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 

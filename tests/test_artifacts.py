@@ -16,7 +16,8 @@ import torch
 from tensordict import TensorDict
 
 from dockingrl.agents.config import make_config
-from dockingrl.agents.saving import check_layout, load_policy, read_policy, save_policy
+from dockingrl.agents.layout import check_layout
+from dockingrl.agents.saving import load_policy, read_policy, save_policy
 from dockingrl.cli.upgrade import add_upgrade_command
 from dockingrl.env import DockingConfig
 from dockingrl.io import ArtifactError, atomic_write, read_artifact, save_artifact

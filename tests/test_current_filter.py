@@ -240,7 +240,7 @@ def test_learned_filter_parameters_and_the_paper_filters_tools_refuse_it():
 def test_a_run_trained_with_it_carries_it_to_evaluation_and_the_onboard_policy(tmp_path):
     from helpers import smoke_config
 
-    from dockingrl.agents.saving import pipeline_options
+    from dockingrl.agents.layout import pipeline_options
     from dockingrl.onboard import OnboardPolicy
     from dockingrl.training import train
 

@@ -59,7 +59,7 @@ def test_onboard_policy_and_its_export_gate_as_the_env_pipeline_does(tmp_path):
 def test_a_run_trained_with_it_carries_it_everywhere(tmp_path):
     from helpers import smoke_config
 
-    from dockingrl.agents.saving import pipeline_options
+    from dockingrl.agents.layout import pipeline_options
     from dockingrl.onboard import OnboardPolicy
     from dockingrl.policies import resolve_policy
     from dockingrl.stress import stress_ladder

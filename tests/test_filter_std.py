@@ -81,7 +81,7 @@ def test_onboard_policy_and_its_export_read_it_as_the_env_pipeline_gives_it(tmp_
 def test_a_run_trained_with_it_carries_it_to_evaluation_and_the_onboard_policy(tmp_path):
     from helpers import smoke_config
 
-    from dockingrl.agents.saving import pipeline_options
+    from dockingrl.agents.layout import pipeline_options
     from dockingrl.onboard import OnboardPolicy
     from dockingrl.policies import resolve_policy
     from dockingrl.stress import stress_ladder

@@ -101,7 +101,8 @@ def test_onboard_policy_from_file_takes_the_training_filter_unless_told_none(tmp
 def test_onboard_policy_from_a_saved_policy_file():
     """It commands what the saved actor commands in the env of its scenario, read from the
     file, and starts over after a reset."""
-    from dockingrl.agents.saving import load_policy, pipeline_options
+    from dockingrl.agents.layout import pipeline_options
+    from dockingrl.agents.saving import load_policy
 
     policy = OnboardPolicy.from_file(PPO_COMPOUND_POLICY)
     actor, info = load_policy(PPO_COMPOUND_POLICY)

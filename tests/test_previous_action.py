@@ -8,7 +8,8 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, check_env_specs, set_exploration_type, step_mdp
 
 from dockingrl import make_env
-from dockingrl.agents.saving import load_policy, pipeline_options
+from dockingrl.agents.layout import pipeline_options
+from dockingrl.agents.saving import load_policy
 from dockingrl.env import DockingConfig
 from dockingrl.onboard import OnboardPolicy, export_onboard
 from dockingrl.training import train

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dockingrl.agents.saving import saved_config
+from dockingrl.agents.layout import saved_config
 from dockingrl.recipes import load_recipe, recipe_names
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"

@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 from torchrl.data import Bounded
 
-from dockingrl.agents.world_options import PAPER_RESPONSE_RATE
+from dockingrl.agents.layout import pipeline_options, policy_layout
 from dockingrl.env.checks import available_device
 from dockingrl.io import (
     ArtifactError,
@@ -23,10 +23,7 @@ from dockingrl.io import (
     save_artifact,
 )
 from dockingrl.scenarios import (
-    OBSERVATION_OPTIONS,
     SCENARIOS,
-    layout_options,
-    observation_layout,
     observation_size,
 )
 
@@ -49,55 +46,6 @@ KEYS = (
 )
 
 
-def saved_config(config):
-    """The typed config of a training config saved as a dict (a run's ``config.json``, a
-    policy file's ``config``), type-checked; a config passes through."""
-    from dockingrl.agents.config import TrainConfig, config_class, saved_fields
-
-    if isinstance(config, TrainConfig):
-        return config
-    return config_class(config["algo"])(**saved_fields(config["algo"], config))
-
-
-def pipeline_options(config) -> dict:
-    """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (a
-    config, or one saved as a dict: a saved policy's ``config``, :func:`saved_config`) fixes
-    for whatever runs its policy: ``observe_current``, ``observe_command``,
-    ``observe_filter_std``, ``action_repeat`` and the filter's ``compensate_latency``,
-    ``estimate_current``, ``filter_gate`` and ``filter_response_rate`` (as ``ekf_kwargs``),
-    where they differ from the paper's. Training, ``dockingrl eval --policy``,
-    ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take them from here."""
-    cfg = saved_config(config)
-    options: dict = {}
-    ekf_kwargs = {k: True for k in ("compensate_latency", "estimate_current") if getattr(cfg, k)}
-    if cfg.filter_gate:
-        ekf_kwargs["gate"] = float(cfg.filter_gate)
-    if cfg.filter_response_rate != PAPER_RESPONSE_RATE:
-        ekf_kwargs["k_v"] = ekf_kwargs["k_w"] = float(cfg.filter_response_rate)
-    if ekf_kwargs:
-        options["ekf_kwargs"] = ekf_kwargs
-    for name in OBSERVATION_OPTIONS:
-        if getattr(cfg, name):
-            options[name] = True
-    if cfg.action_repeat != 1:
-        options["action_repeat"] = cfg.action_repeat
-    return options
-
-
-def policy_layout(scenario: str, obs_dim: int, config: Mapping) -> dict:
-    """The observation layout a policy declares: the ``scenario`` it was trained on, the
-    entries of its observation (:func:`~dockingrl.scenarios.observation_layout` with the
-    options of its training ``config``, a dict), ``obs_dim`` and ``action_repeat``."""
-    options = pipeline_options(config)
-    keys = observation_layout(scenario, **layout_options(options))
-    return {
-        "scenario": scenario,
-        "keys": list(keys),
-        "obs_dim": int(obs_dim),
-        "action_repeat": int(options.get("action_repeat", 1)),
-    }
-
-
 def save_policy(
     path: str | Path,
     actor: torch.nn.Module,
@@ -108,11 +56,11 @@ def save_policy(
     filter_params: Mapping | None = None,
     **metadata,
 ) -> Path:
-    """Write the actor's weights with what is needed to rebuild it and the observation
-    layout it reads (:func:`policy_layout`), as an artefact of :mod:`dockingrl.io`
-    (atomically), and the payload of the learned filter it was trained with
-    (``filter_params``, from :func:`~dockingrl.transforms.params.read_filter_params`), so that
-    the policy file is whole without the filter's file."""
+    """Write the actor's weights with what is needed to rebuild it and the observation layout it
+    reads (:func:`~dockingrl.agents.layout.policy_layout`), as an artefact of :mod:`dockingrl.io`
+    (atomically), and the payload of the learned filter it was trained with (``filter_params``, from
+    :func:`~dockingrl.transforms.params.read_filter_params`), so that the policy file is whole
+    without the filter's file."""
     config_dict = config.to_dict()
     payload = {
         "format": FORMAT,
@@ -222,24 +170,14 @@ def _check_config(path, algo: str, config: dict) -> None:
         raise ArtifactError(f"{path}: its config: {first_line(exc)}") from None
 
 
-def reject_policy_pair(actor, name: str, hint: str) -> None:
-    """Raise one ``TypeError`` when ``actor`` is the ``(actor, info)`` pair that
-    :func:`load_policy` returns rather than its actor; ``hint`` says what to pass instead."""
-    if isinstance(actor, tuple):
-        raise TypeError(
-            f"{name} is a tuple (load_policy returns the pair (actor, info)): pass the actor, "
-            f"{hint}"
-        )
-
-
 def load_policy(path: str | Path, device: torch.device | str = "cpu"):
-    """Rebuild a saved actor. Returns ``(actor, info)`` where ``info`` has ``algo``,
-    ``scenario``, ``config``, ``metadata``, ``observation_layout`` (see :func:`check_layout`),
-    ``path`` and ``filter_params`` (the learned filter's payload it was trained with, or
-    ``None``: Table 1's filter, or a policy saved before policies carried it, whose
-    ``config["filter_params"]`` names the file) and ``env_options``, the
-    :func:`~dockingrl.make_env` options its pipeline needs (:func:`pipeline_options`). The
-    actor acts deterministically under
+    """Rebuild a saved actor. Returns ``(actor, info)`` where ``info`` has ``algo``, ``scenario``,
+    ``config``, ``metadata``, ``observation_layout`` (see
+    :func:`~dockingrl.agents.layout.check_layout`), ``path`` and ``filter_params`` (the learned
+    filter's payload it was trained with, or ``None``: Table 1's filter, or a policy saved before
+    policies carried it, whose ``config["filter_params"]`` names the file) and ``env_options``, the
+    :func:`~dockingrl.make_env` options its pipeline needs
+    (:func:`~dockingrl.agents.layout.pipeline_options`). The actor acts deterministically under
     ``ExplorationType.DETERMINISTIC`` (what :func:`dockingrl.evaluate` sets). Raises
     :class:`~dockingrl.io.ArtifactError` for a missing, damaged, crafted or older file."""
     available_device(str(device))
@@ -250,32 +188,9 @@ def load_policy(path: str | Path, device: torch.device | str = "cpu"):
     info["observation_layout"] = payload["observation_layout"]
     info["path"] = str(path)
     info["env_options"] = pipeline_options(payload["config"])
-    # what :func:`check_actor_fits` checks an env against
+    # what :func:`~dockingrl.agents.layout.check_actor_fits` checks an env against
     actor.trained_on = {"path": str(path), "observation_layout": payload["observation_layout"]}
     return actor.to(device).eval(), info
-
-
-def check_options_layout(info: Mapping, scenario: str, obs_dim: int, options: Mapping) -> None:
-    """:func:`check_layout` for the env of ``scenario`` built with the :func:`~dockingrl.make_env`
-    ``options`` (its ``observe_*`` and ``action_repeat``), whose observation has ``obs_dim``
-    numbers."""
-    check_layout(
-        info,
-        scenario,
-        obs_dim,
-        **layout_options(options),
-        action_repeat=options.get("action_repeat", 1),
-    )
-
-
-def check_actor_fits(actor, scenario: str, obs_dim: int, options: Mapping) -> None:
-    """For an actor from :func:`load_policy`: check (:func:`check_options_layout`) that the env
-    of ``scenario`` built with ``options``, whose observation has ``obs_dim`` numbers, gives it
-    the observation it was trained on. Any other policy (the managed surge controller, an actor
-    built in code) passes unchecked."""
-    trained = getattr(actor, "trained_on", None)
-    if trained is not None:
-        check_options_layout(trained, scenario, obs_dim, options)
 
 
 def _rebuild(path, payload: dict) -> torch.nn.Module:
@@ -305,51 +220,6 @@ def _rebuild(path, payload: dict) -> torch.nn.Module:
             f"{path}: does not rebuild a {payload['algo']} actor ({first_line(exc)})"
         ) from None
     return actor
-
-
-def check_layout(
-    info: Mapping,
-    scenario: str,
-    obs_dim: int,
-    *,
-    observe_current: bool = False,
-    observe_command: bool = False,
-    observe_filter_std: bool = False,
-    action_repeat: int | None = None,
-) -> None:
-    """Check that an env of ``scenario`` built with these :func:`~dockingrl.make_env` options,
-    whose ``observation`` has ``obs_dim`` numbers, gives the policy of ``info`` (from
-    :func:`load_policy`) the observation it was trained on: the same entries in the same
-    order, the same size, and (where ``action_repeat`` is given) the same action repeat. A
-    different scenario of the same layout passes (``no_noise`` and ``noise``). Raises
-    :class:`~dockingrl.io.ArtifactError` with one line saying what differs."""
-    trained = info["observation_layout"]
-    keys = observation_layout(
-        scenario,
-        observe_current=observe_current,
-        observe_command=observe_command,
-        observe_filter_std=observe_filter_std,
-    )
-    given = {
-        "scenario": scenario,
-        "keys": list(keys),
-        "obs_dim": int(obs_dim),
-        "action_repeat": trained["action_repeat"] if action_repeat is None else action_repeat,
-    }
-    if all(given[k] == trained[k] for k in ("keys", "obs_dim", "action_repeat")):
-        return
-    name = info.get("path", "the policy")
-    raise ArtifactError(
-        f"policy {name} was trained on {_describe(trained)} but the env gives {_describe(given)}"
-    )
-
-
-def _describe(layout: Mapping) -> str:
-    text = f"scenario {layout['scenario']!r} (observation: {', '.join(layout['keys'])}; "
-    text += f"{layout['obs_dim']} numbers"
-    if layout["action_repeat"] != 1:
-        text += f"; action_repeat {layout['action_repeat']}"
-    return text + ")"
 
 
 def upgrade_policy(path: str | Path) -> str:
@@ -389,9 +259,3 @@ def upgrade_policy(path: str | Path) -> str:
     _rebuild(path, payload)
     save_artifact(path, payload)
     return f"{path}: {found} -> {FORMAT}"
-
-
-def training_filter(info: Mapping):
-    """The learned filter a loaded policy (``info`` of :func:`load_policy`) was trained with:
-    the payload it carries, else the file its config names, else ``None`` (Table 1's)."""
-    return info.get("filter_params") or saved_config(info["config"]).filter_params or None

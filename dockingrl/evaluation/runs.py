@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from dockingrl.agents.saving import check_actor_fits, reject_policy_pair
+from dockingrl.agents.layout import check_actor_fits, reject_policy_pair
 from dockingrl.env.bounds import MAX_BATCH
 from dockingrl.evaluation.episodes import Policy, base_env, episode_record, run_episodes
 from dockingrl.evaluation.machine import describe_machine

@@ -52,9 +52,9 @@ def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
     :func:`~dockingrl.agents.saving.load_policy`) reads what the env of ``scenario`` built by
     :func:`~dockingrl.make_env` with ``options`` (``observe_current``, ``observe_command``,
     ``observe_filter_std``, ``action_repeat``) gives:
-    :func:`~dockingrl.agents.saving.check_layout` against that env's observation spec.
+    :func:`~dockingrl.agents.layout.check_layout` against that env's observation spec.
     Raises :class:`~dockingrl.io.ArtifactError`, one line saying what differs."""
-    from dockingrl.agents.saving import check_options_layout
+    from dockingrl.agents.layout import check_options_layout
 
     env = make_env(scenario, 1, **options)
     check_options_layout(info, scenario, env.observation_spec["observation"].shape[-1], options)
@@ -205,7 +205,7 @@ class OnboardPolicy(nn.Module):
         k_w: float = 2.5,
     ) -> None:
         super().__init__()
-        from dockingrl.agents.saving import reject_policy_pair
+        from dockingrl.agents.layout import reject_policy_pair
 
         reject_policy_pair(actor, "actor", "or use OnboardPolicy.from_file(path)")
         if not callable(actor):
@@ -263,7 +263,8 @@ class OnboardPolicy(nn.Module):
         ``config`` describes the vehicle (default: the paper's): with a policy trained with
         ``--compensate-latency`` the filter compensates ``config``'s USBL latency, not the
         latency of the level the policy was trained at."""
-        from dockingrl.agents.saving import load_policy, pipeline_options, training_filter
+        from dockingrl.agents.layout import pipeline_options, training_filter
+        from dockingrl.agents.saving import load_policy
 
         actor, info = load_policy(path, device=device)
         options = pipeline_options(info["config"])

@@ -6,8 +6,8 @@ from __future__ import annotations
 from torchrl.envs import RewardSum
 
 from dockingrl.agents.config import TrainConfig
+from dockingrl.agents.layout import pipeline_options
 from dockingrl.agents.reward_shaping import RewardShaping
-from dockingrl.agents.saving import pipeline_options
 from dockingrl.agents.world_options import curriculum_levels
 from dockingrl.env import DockingConfig
 from dockingrl.env.levels import level_config
