@@ -25,8 +25,9 @@ COMMAND_GROUPS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     (
         "filter",
         "add_filter_commands",
-        ("filter-figure", "learn-filter", "filter-ablation", "ppo-filter-comparison"),
+        ("filter-figure", "learn-filter", "filter-ablation"),
     ),
+    ("filter_comparison", "add_filter_comparison_command", ("ppo-filter-comparison",)),
     ("stress", "add_stress_command", ("stress",)),
     ("onboard", "add_onboard_commands", ("record-log", "replay")),
     ("upgrade", "add_upgrade_command", ("upgrade",)),
