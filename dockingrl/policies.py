@@ -30,11 +30,10 @@ def resolve_policy(spec: str, *, use_filter: bool = False, device: str = "cpu"):
         return ManagedSurgePolicy(use_filter=use_filter), "managed_surge", None, {}, {}
     if not Path(spec).exists():
         raise FileNotFoundError(f"policy {spec!r}: neither 'managed_surge' nor a file")
-    from dockingrl.agents.layout import pipeline_options
     from dockingrl.agents.saving import load_policy as load_saved
 
     policy, meta = load_saved(spec, device=device)
-    options = pipeline_options(meta["config"])
+    options = dict(meta["env_options"])
     name = meta["config"].get("recipe") or meta.get("algo", "agent")
     return policy, name, meta.get("scenario"), options, meta
 

@@ -263,11 +263,11 @@ class OnboardPolicy(nn.Module):
         ``config`` describes the vehicle (default: the paper's): with a policy trained with
         ``--compensate-latency`` the filter compensates ``config``'s USBL latency, not the
         latency of the level the policy was trained at."""
-        from dockingrl.agents.layout import pipeline_options, training_filter
+        from dockingrl.agents.layout import training_filter
         from dockingrl.agents.saving import load_policy
 
         actor, info = load_policy(path, device=device)
-        options = pipeline_options(info["config"])
+        options = dict(info["env_options"])
         if filter_params is None:
             params = training_filter(info)
         else:
