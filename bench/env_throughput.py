@@ -56,6 +56,15 @@ def pipelines(device: str = "cpu"):
         "compound, make_env(compile=True)",
         lambda n: make_env("compound", n, seed=0, device=d, compile=True),
     )
+    yield (
+        "env (noise), Fossen vehicle, compile_step=True",
+        lambda n: DockingEnv(n, seed=0, device=d, config=fossen, compile_step=True),
+    )
+    mixed = DockingConfig(vehicle="mixed")
+    yield (
+        "compound, either vehicle per episode (M0), make_env(compile=True)",
+        lambda n: make_env("compound", n, seed=0, device=d, config=mixed, compile=True),
+    )
 
 
 def main(argv=None) -> None:

@@ -362,6 +362,24 @@ def test_mixed_episodes_fly_each_vehicle_as_its_own_env_does():
     assert everyone.on_fossen.all()
 
 
+def test_compile_step_compiles_the_mixed_vehicles_step_to_the_eager_numbers():
+    """``compile_step`` compiles the Fossen and mixed vehicles' step too, not only the paper
+    model's. From the same starts its first steps give the eager numbers up to rounding (further
+    on, the thrusters' quantised commands can turn a rounding difference into a step of thrust,
+    so long rollouts part)."""
+    config = level_config("M5F")
+    eager, fast = (DockingEnv(64, config=config, seed=5, compile_step=c) for c in (False, True))
+    runs = [
+        env.rollout(3, policy=_fixed_policy, break_when_any_done=False) for env in (eager, fast)
+    ]
+    on = fast.on_fossen[:, 0]
+    assert torch.equal(on, eager.on_fossen[:, 0]) and on.any() and (~on).any()
+    for key in ("true_state", "observation", "reward"):
+        torch.testing.assert_close(runs[1]["next", key], runs[0]["next", key], rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(fast._thrust, eager._thrust, rtol=1e-4, atol=1e-4)
+    assert fast._thrust[on].abs().sum() > 0 and fast._thrust[~on].abs().sum() == 0
+
+
 def test_a_state_round_trip_keeps_the_thrusters():
     env = fossen_env(4)
     env.rollout(20, policy=_fixed_policy, break_when_any_done=False)

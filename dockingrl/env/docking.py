@@ -166,6 +166,7 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
         self.dtype = dtype
         self._make_specs()
         self._make_constants()
+        self.compile_step = bool(compile_step)
         self._transition = self._make_transition()
         if compile_step:
             self._transition = compiled(self._transition, self.device, dynamic=False)

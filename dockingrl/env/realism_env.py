@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
+from dockingrl.env.checks import compiled
 from dockingrl.env.dynamics import noisy_observation
 from dockingrl.env.fossen import SPARUS_II, fossen_step, hydrodynamics, strip_tensors
 from dockingrl.env.realism import (
@@ -23,7 +24,7 @@ from dockingrl.env.realism import (
     vehicle_parameters,
 )
 from dockingrl.env.specs import OBSERVATION_DIM
-from dockingrl.env.step import batch_motion, step_entries
+from dockingrl.env.step import make_fossen_transition, step_entries
 
 
 class RealismMixin:
@@ -105,6 +106,14 @@ class RealismMixin:
             self._thrust = torch.zeros(n, 2, device=dev, dtype=dtype)
             self._strips = strip_tensors(SPARUS_II, dev, dtype)
             self._make_fossen_vehicle()
+            gains = (self._kp, self._ki, self._kd, self._inertia)
+            self._fossen_transition = make_fossen_transition(
+                cfg, *gains, self._strips, self.step_reward
+            )
+            if self.compile_step:
+                self._fossen_transition = compiled(
+                    self._fossen_transition, self.device, dynamic=False
+                )
         if cfg.vehicle == "mixed":
             self._on_fossen = torch.zeros(n, 1, device=dev, dtype=torch.bool)
 
@@ -197,46 +206,31 @@ class RealismMixin:
 
     def _advance_fossen(self, action: torch.Tensor) -> dict:
         """Move the Fossen vehicle (``"mixed"``: each env its episode's vehicle) one step on
-        (:func:`~dockingrl.env.fossen.fossen_step`) and return the step's entries."""
-        cfg = self.config
-        pose, velocity, thrust, integral, error, tau = fossen_step(
+        (:func:`~dockingrl.env.step.make_fossen_transition`) and return the step's entries."""
+        mixed = self.config.vehicle == "mixed"
+        (
             self._pose,
             self._velocity,
             self._thrust,
             self._integral,
-            action,
+            self._previous_error,
+            self._step_count,
+            out,
+        ) = self._fossen_transition(
+            self._pose,
+            self._velocity,
+            self._thrust,
             self._current,
-            SPARUS_II,
+            self._integral,
+            self._previous_error,
+            self._step_count,
+            action,
             self._fossen_nominal,
             self._fossen_hydro,
-            self._strips,
-            cfg.dt,
             self._fossen_gain,
+            self._on_fossen if mixed else None,
+            self._vehicle if mixed else None,
         )
-        if cfg.vehicle == "mixed":
-            gains = (self._kp, self._ki, self._kd, self._inertia)
-            paper = batch_motion(
-                cfg,
-                gains,
-                self._pose,
-                self._velocity,
-                self._current,
-                self._integral,
-                self._previous_error,
-                action,
-                self._vehicle,
-            )
-            rows = self._on_fossen
-            fossen = (pose, velocity, integral, error, tau)
-            pose, velocity, integral, error, tau = (
-                torch.where(rows, f, p) for f, p in zip(fossen, paper, strict=True)
-            )
-            thrust = torch.where(rows, thrust, self._thrust)
-        self._step_count, out = step_entries(
-            cfg, pose, velocity, self._current, self._step_count, tau, self.step_reward, None, None
-        )
-        self._pose, self._velocity, self._thrust = pose, velocity, thrust
-        self._integral, self._previous_error = integral, error
         return out
 
     def _simulate_fossen(self, state: TensorDictBase, action: torch.Tensor):

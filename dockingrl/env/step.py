@@ -1,13 +1,15 @@
 """The simulation step of :class:`~dockingrl.env.DockingEnv` as pure tensor functions of the
 batched state: the paper vehicle's motion (the PID of Sec. 4.1, or the episode's vehicle of the
-realism options, and eqs. 36-38), then, for either vehicle, the observation of eq. 2 and Table
-2's noise, the reward of eq. 12 and the episode's end."""
+realism options, and eqs. 36-38) or the Fossen vehicle's (:func:`~dockingrl.env.fossen.fossen_step`;
+with ``vehicle="mixed"`` each env its episode's), then, for either vehicle, the observation of
+eq. 2 and Table 2's noise, the reward of eq. 12 and the episode's end."""
 
 from __future__ import annotations
 
 import torch
 
 from dockingrl.env.config import DockingConfig
+from dockingrl.env.fossen import SPARUS_II, fossen_step
 from dockingrl.env.realism import limit_thrust
 from dockingrl.env.transition import SimulatorState, paper_motion, step_outcome
 
@@ -131,5 +133,74 @@ def make_transition(
             cfg, pose, velocity, current, step_count, tau, step_reward, noise, noise_std
         )
         return pose, velocity, integral, error, step_count, out
+
+    return transition
+
+
+def make_fossen_transition(
+    config: DockingConfig,
+    kp: torch.Tensor,
+    ki: torch.Tensor,
+    kd: torch.Tensor,
+    inertia: torch.Tensor,
+    strips,
+    step_reward,
+):
+    """The step ``transition(pose, velocity, thrust, current, integral, previous_error,
+    step_count, action, nominal, hydro, gain, on_fossen, vehicle) -> (pose, velocity, thrust,
+    integral, error, step_count, out)`` of the Fossen vehicle (``config.vehicle="fossen"``) or of
+    each env's episode vehicle (``"mixed"``), what ``compile_step`` hands to ``torch.compile``
+    for them: :func:`~dockingrl.env.fossen.fossen_step` of :data:`~dockingrl.env.fossen.SPARUS_II`
+    with its controller's nominal coefficients ``nominal``, the episode's ``hydro`` and PI
+    ``gain`` and the cross-flow ``strips``; with ``on_fossen`` ``(n, 1)`` (``"mixed"``), the
+    paper's vehicle (:func:`batch_motion` with ``kp``, ``ki``, ``kd``, ``inertia`` and the
+    episode's ``vehicle`` or ``None``) in the other rows, whose thrusters' state stays as it was;
+    no noise (the realistic step draws its own); ``out`` the entries of :func:`step_entries`."""
+    cfg = config
+    gains = (kp, ki, kd, inertia)
+
+    def transition(
+        pose,
+        velocity,
+        thrust,
+        current,
+        integral,
+        previous_error,
+        step_count,
+        action,
+        nominal,
+        hydro,
+        gain,
+        on_fossen,
+        vehicle,
+    ):
+        moved = fossen_step(
+            pose,
+            velocity,
+            thrust,
+            integral,
+            action,
+            current,
+            SPARUS_II,
+            nominal,
+            hydro,
+            strips,
+            cfg.dt,
+            gain,
+        )
+        new_pose, new_velocity, new_thrust, new_integral, error, tau = moved
+        if on_fossen is not None:
+            paper = batch_motion(
+                cfg, gains, pose, velocity, current, integral, previous_error, action, vehicle
+            )
+            fossen = (new_pose, new_velocity, new_integral, error, tau)
+            new_pose, new_velocity, new_integral, error, tau = (
+                torch.where(on_fossen, f, p) for f, p in zip(fossen, paper, strict=True)
+            )
+            new_thrust = torch.where(on_fossen, new_thrust, thrust)
+        step_count, out = step_entries(
+            cfg, new_pose, new_velocity, current, step_count, tau, step_reward, None, None
+        )
+        return new_pose, new_velocity, new_thrust, new_integral, error, step_count, out
 
     return transition
