@@ -12,7 +12,7 @@ from tensordict import TensorDictBase
 
 from dockingrl.env.checks import compiled
 from dockingrl.env.dynamics import noisy_observation
-from dockingrl.env.fossen import SPARUS_II, fossen_step, hydrodynamics, strip_tensors
+from dockingrl.env.fossen import SPARUS_II, hydrodynamics, strip_tensors
 from dockingrl.env.realism import (
     SENSOR_OF_ENTRY,
     SENSORS,
@@ -24,7 +24,7 @@ from dockingrl.env.realism import (
     vehicle_parameters,
 )
 from dockingrl.env.specs import OBSERVATION_DIM
-from dockingrl.env.step import make_fossen_transition, step_entries
+from dockingrl.env.step import make_fossen_transition
 
 
 class RealismMixin:
@@ -239,23 +239,20 @@ class RealismMixin:
         integral, error, step_count, out, thrust)``."""
         if "realism" not in state.keys() or "thrust" not in state["realism"].keys():
             raise KeyError("state lacks ['realism']['thrust']: the Fossen vehicle's thrusters")
-        cfg, current = self.config, state["ocean_current"]
-        pose, velocity, thrust, integral, error, tau = fossen_step(
+        pose, velocity, thrust, integral, error, step_count, out = self._fossen_transition(
             state["pose"],
             state["velocity"],
             state["realism"]["thrust"],
+            state["ocean_current"],
             state["integral"],
+            state["previous_error"],
+            state["step_count"],
             action,
-            current,
-            SPARUS_II,
             self._fossen_nominal,
             self._fossen_hydro,
-            self._strips,
-            cfg.dt,
             self._fossen_gain,
-        )
-        step_count, out = step_entries(
-            cfg, pose, velocity, current, state["step_count"], tau, self.step_reward, None, None
+            None,
+            None,
         )
         return pose, velocity, integral, error, step_count, out, thrust
 
