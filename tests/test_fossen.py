@@ -376,8 +376,11 @@ def test_compile_step_compiles_the_mixed_vehicles_step_to_the_eager_numbers():
     assert torch.equal(on, eager.on_fossen[:, 0]) and on.any() and (~on).any()
     for key in ("true_state", "observation", "reward"):
         torch.testing.assert_close(runs[1]["next", key], runs[0]["next", key], rtol=1e-4, atol=1e-4)
-    torch.testing.assert_close(fast._thrust, eager._thrust, rtol=1e-4, atol=1e-4)
+    states = [env.get_state() for env in (eager, fast)]  # thrusters and both PIs' state too
+    torch.testing.assert_close(states[1], states[0], rtol=1e-4, atol=1e-4)
     assert fast._thrust[on].abs().sum() > 0 and fast._thrust[~on].abs().sum() == 0
+    assert hasattr(fast._fossen_transition, "_torchdynamo_orig_callable")  # compiled
+    assert not hasattr(eager._fossen_transition, "_torchdynamo_orig_callable")
 
 
 def test_a_state_round_trip_keeps_the_thrusters():

@@ -121,8 +121,10 @@ class DockingEnv(RealismMixin, StateAccessMixin, EnvBase):
         seed: seed of the env's own ``torch.Generator``; ``None`` draws one from torch's global
             generator. The same seed gives bit-identical rollouts on CPU.
         dtype: floating dtype of the simulation (float32 by default).
-        compile_step: run the simulation step through ``torch.compile`` (same numbers up to
-            rounding, faster for large batches; the first step pays the compilation). Not to be
+        compile_step: run the simulation step, of either vehicle, through ``torch.compile``
+            (same numbers up to rounding, faster; the first step pays the compilation). The
+            Fossen vehicle's quantised thruster commands can turn a rounding difference into a
+            step of thrust, so its long rollouts part from the eager ones. Not to be
             confused with TorchRL's own ``compile=`` option, which compiles the whole
             ``EnvBase.step``.
         check_finite: a debug option: after every reset and step, check the outputs and the PID's

@@ -2,7 +2,8 @@
 batched state: the paper vehicle's motion (the PID of Sec. 4.1, or the episode's vehicle of the
 realism options, and eqs. 36-38) or the Fossen vehicle's (:func:`~dockingrl.env.fossen.fossen_step`;
 with ``vehicle="mixed"`` each env its episode's), then, for either vehicle, the observation of
-eq. 2 and Table 2's noise, the reward of eq. 12 and the episode's end."""
+eq. 2 (with Table 2's noise on the paper's task; the realistic step draws its own), the reward of
+eq. 12 and the episode's end."""
 
 from __future__ import annotations
 
