@@ -90,8 +90,7 @@ def trained_filter_options(trained: dict, scenario: str, options: dict) -> dict:
     """``options`` (the make_env options of a saved policy, ``info`` ``trained``) checked
     against ``scenario``'s observation, with the learned filter the policy was trained with
     where ``scenario`` filters."""
-    from dockingrl.agents.layout import training_filter
-    from dockingrl.onboard import check_env_layout
+    from dockingrl.agents.layout import check_env_layout, training_filter
     from dockingrl.scenarios import FILTERED_OBSERVATION_KEYS
 
     check_env_layout(trained, scenario, options)

@@ -43,12 +43,18 @@ OBSERVATION_PARTS = {
     "filtered_observation": MIRROR_OBSERVATION,  # h(EKF estimate), eq. 34
     "filter_std": (1.0, 1.0),  # ``observe_filter_std``: the estimate's std of x and y
     "ocean_current": MIRROR_PAIR,  # ``observe_current``
+    "current_error": MIRROR_PAIR,  # ``observe_current_error``: the EKF's estimate of its error
     "previous_action": MIRROR_PAIR,  # ``observe_command``
 }
 
 
 #: the :func:`make_env` options that add entries to the policy's ``observation``
-OBSERVATION_OPTIONS = ("observe_filter_std", "observe_current", "observe_command")
+OBSERVATION_OPTIONS = (
+    "observe_filter_std",
+    "observe_current",
+    "observe_current_error",
+    "observe_command",
+)
 
 
 def layout_options(options) -> dict[str, bool]:
@@ -66,24 +72,30 @@ def observation_layout(
     observe_current: bool = False,
     observe_command: bool = False,
     observe_filter_std: bool = False,
+    observe_current_error: bool = False,
 ) -> tuple[str, ...]:
     """The entries the policy's ``observation`` concatenates, in order, for ``scenario`` with
     the options of :func:`make_env`: the scenario's own (``FILTERED_OBSERVATION_KEYS``, or the
-    reading alone), then the filter's position uncertainty, then the current, then the previous
-    command. :func:`make_env`, :func:`mirror_signs` and :class:`dockingrl.onboard.OnboardStep`
-    all read it."""
+    reading alone), then the filter's position uncertainty, then the current, then the filter's
+    estimate of the current's error, then the previous command. :func:`make_env`,
+    :func:`mirror_signs` and :class:`dockingrl.onboard.OnboardStep` all read it."""
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
-    if observe_filter_std and scenario not in FILTERED_OBSERVATION_KEYS:
-        raise ValueError(
-            f"observe_filter_std needs a scenario with the EKF "
-            f"({', '.join(FILTERED_OBSERVATION_KEYS)}), not {scenario!r}"
-        )
+    for name, on in (
+        ("observe_filter_std", observe_filter_std),
+        ("observe_current_error", observe_current_error),
+    ):
+        if on and scenario not in FILTERED_OBSERVATION_KEYS:
+            raise ValueError(
+                f"{name} needs a scenario with the EKF "
+                f"({', '.join(FILTERED_OBSERVATION_KEYS)}), not {scenario!r}"
+            )
     keys = FILTERED_OBSERVATION_KEYS.get(scenario, ("observation",))
     return (
         keys
         + (("filter_std",) if observe_filter_std else ())
         + (("ocean_current",) if observe_current else ())
+        + (("current_error",) if observe_current_error else ())
         + (("previous_action",) if observe_command else ())
     )
 
@@ -178,6 +190,7 @@ def make_env(
     observe_current: bool = False,
     observe_command: bool = False,
     observe_filter_std: bool = False,
+    observe_current_error: bool = False,
     action_repeat: int = 1,
 ) -> TransformedEnv:
     """Build one of the paper's four scenarios (Sec. 4) as a ``TransformedEnv``.
@@ -216,6 +229,12 @@ def make_env(
             entries, after the scenario's; ``filtered`` and ``compound`` only). Not in the
             paper: with slow, late or lost fixes (docs/realism.md) it tells the policy how
             far its estimate may be off.
+        observe_current_error: append the filter's estimate of the error of the believed
+            current (:class:`~dockingrl.transforms.observations.CurrentError`; +2 entries,
+            after the current's), from the filter that estimates it
+            (``ekf_kwargs={"estimate_current": True}``). Not in the paper: with a biased
+            belief about the current (docs/realism.md) it tells the policy what the fixes
+            say of that bias.
         action_repeat: hold each action for this many steps of ``dt``
             (:class:`~dockingrl.transforms.ActionRepeat`, not in the paper): one env step is
             then ``action_repeat`` simulation steps, with their rewards summed. Placed before
@@ -226,7 +245,7 @@ def make_env(
     from dockingrl.env import DockingEnv
     from dockingrl.env.config import config_or_default
     from dockingrl.transforms import ActionRepeat, CompoundObservation, PreviousAction
-    from dockingrl.transforms.observations import FilterStd
+    from dockingrl.transforms.observations import CurrentError, FilterStd
     from dockingrl.transforms.repeat import check_action_repeat
 
     layout = observation_layout(
@@ -234,6 +253,7 @@ def make_env(
         observe_current=observe_current,
         observe_command=observe_command,
         observe_filter_std=observe_filter_std,
+        observe_current_error=observe_current_error,
     )
     config = config_or_default(config).replace(noise=scenario != "no_noise")
     base = DockingEnv(num_envs, config=config, device=device, seed=seed, compile_step=compile)
@@ -245,6 +265,8 @@ def make_env(
         stages.append(ekf)
         if observe_filter_std:
             stages.append(FilterStd(cov_key=ekf.cov_key))
+        if observe_current_error:
+            stages.append(CurrentError(ekf))
     elif filter_params is not None or ekf_kwargs:
         raise ValueError(f"scenario {scenario!r} has no filter: filter options do not apply")
     if observe_command:

@@ -14,7 +14,7 @@ from dockingrl.env import DockingConfig
 from dockingrl.env.levels import level_config
 from dockingrl.filter_learning import filter_estimates, record_rollouts
 from dockingrl.filter_learning.consistency import state_error
-from dockingrl.scenarios import make_filter
+from dockingrl.scenarios import make_filter, mirror_signs
 from dockingrl.stress import stress_ladder
 from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.current_filter import (
@@ -131,22 +131,47 @@ def test_the_stress_ladder_refuses_it_without_a_filter():
         stress_ladder("managed_surge", "noise", episodes=1, estimate_current=True)
 
 
-def test_onboard_policy_and_its_export_estimate_as_the_env_pipeline_does(tmp_path):
+@pytest.mark.parametrize("observe_error", [False, True])
+def test_onboard_policy_and_its_export_estimate_as_the_env_pipeline_does(tmp_path, observe_error):
+    """The onboard policy and its exported program run the filter as the env pipeline does,
+    and, with ``observe_current_error``, give the actor the current and the filter's estimate
+    of its error as the pipeline's ``CurrentError`` does."""
     from helpers import drive_onboard_beside_env, tiny_actor
 
     from dockingrl.onboard import OnboardPolicy, export_onboard
 
     config = level_config("L5").replace(max_steps=40)
     options = {"compensate_latency": True, "estimate_current": True}
-    actor = tiny_actor(12, "sac")
-    onboard = OnboardPolicy(actor, "compound", config=config, **options)
+    observe = {"observe_current": True, "observe_current_error": True} if observe_error else {}
+    actor = tiny_actor(16 if observe_error else 12, "sac")
+    onboard = OnboardPolicy(actor, "compound", config=config, **options, **observe)
     program = torch.export.load(
         export_onboard(onboard, tmp_path / "onboard.pt2", batch=4, sensor_age=True)
     ).module()
-    env = make_env("compound", 4, seed=3, config=config, ekf_kwargs=options)
+    env = make_env("compound", 4, seed=3, config=config, ekf_kwargs=options, **observe)
+    if observe_error:
+        td = env.rollout(30)
+        errors = td["next", "observation"][..., 14:16]
+        torch.testing.assert_close(errors, td["next", "ekf_mean"][..., 5:7])
+        assert errors.abs().max() > 1e-3  # the filter moved its estimate off zero
     assert onboard.initial_state(4)[0].shape == (4, AUGMENTED_DIM)
     resets, _ = drive_onboard_beside_env(env, actor, onboard, program)
     assert resets > 0
+
+
+def test_the_estimated_error_is_observed_only_from_the_filter_that_estimates_it():
+    from helpers import tiny_actor
+
+    from dockingrl.onboard import OnboardPolicy
+
+    with pytest.raises(ValueError, match="needs the filter that estimates the current's error"):
+        make_env("filtered", 2, seed=0, observe_current_error=True)
+    with pytest.raises(ValueError, match="needs a scenario with the EKF"):
+        make_env("noise", 2, seed=0, observe_current_error=True)
+    with pytest.raises(ValueError, match="needs the filter that estimates the current's error"):
+        OnboardPolicy(tiny_actor(8, "sac"), "filtered", observe_current_error=True)
+    signs = mirror_signs("filtered", observe_current=True, observe_current_error=True)
+    assert signs[-4:].tolist() == [1.0, -1.0, 1.0, -1.0]  # oc_y and b_y flip with the mirror
 
 
 def _augmented(mean, cov, action, z, current, R, std=0.05, seed=1):
@@ -275,3 +300,15 @@ def test_a_scenario_without_a_filter_refuses_it():
 
     with pytest.raises(ValueError, match="estimate_current.*has no filter"):
         make_config("sac", "paper", scenario="noise", estimate_current=True)
+
+
+def test_a_run_observes_the_estimated_error_only_with_the_filter_that_estimates_it():
+    from dockingrl import load_recipe
+
+    recipe = load_recipe("sac-robust")
+    with pytest.raises(ValueError, match="observe_current_error: needs estimate_current"):
+        recipe.make_config(estimate_current=False, observe_current_error=True)
+    with pytest.raises(ValueError, match="observe_current_error: scenario 'noise' has no filter"):
+        load_recipe("sac").make_config(scenario="noise", observe_current_error=True)
+    cfg = recipe.make_config(observe_current_error=True)
+    assert cfg.observe_current_error and cfg.estimate_current

@@ -1,7 +1,8 @@
 """What a saved policy needs of the env that runs it, and the checks that an env gives it:
 the :func:`~dockingrl.make_env` options its training config fixes (:func:`pipeline_options`),
 the learned filter it was trained with (:func:`training_filter`), and its observation layout
-(:func:`policy_layout`, checked by :func:`check_layout`)."""
+(:func:`policy_layout`, checked by :func:`check_layout` and, against an env built for it,
+:func:`check_env_layout`)."""
 
 from __future__ import annotations
 
@@ -26,10 +27,10 @@ def pipeline_options(config) -> dict:
     """The :func:`~dockingrl.make_env` options beyond the scenario that a training config (a
     config, or one saved as a dict: a saved policy's ``config``, :func:`saved_config`) fixes
     for whatever runs its policy: ``observe_current``, ``observe_command``,
-    ``observe_filter_std``, ``action_repeat`` and the filter's ``compensate_latency``,
-    ``estimate_current``, ``filter_gate`` and ``filter_response_rate`` (as ``ekf_kwargs``),
-    where they differ from the paper's. Training, ``dockingrl eval --policy``,
-    ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take them from here."""
+    ``observe_filter_std``, ``observe_current_error``, ``action_repeat`` and the filter's
+    ``compensate_latency``, ``estimate_current``, ``filter_gate`` and ``filter_response_rate``
+    (as ``ekf_kwargs``), where they differ from the paper's. Training, ``dockingrl eval
+    --policy``, ``dockingrl stress`` and ``OnboardPolicy.from_file`` all take them from here."""
     cfg = saved_config(config)
     options: dict = {}
     ekf_kwargs = {k: True for k in ("compensate_latency", "estimate_current") if getattr(cfg, k)}
@@ -87,6 +88,7 @@ def check_layout(
     observe_current: bool = False,
     observe_command: bool = False,
     observe_filter_std: bool = False,
+    observe_current_error: bool = False,
     action_repeat: int | None = None,
 ) -> None:
     """Check that an env of ``scenario`` built with these :func:`~dockingrl.make_env` options, whose
@@ -101,6 +103,7 @@ def check_layout(
         observe_current=observe_current,
         observe_command=observe_command,
         observe_filter_std=observe_filter_std,
+        observe_current_error=observe_current_error,
     )
     given = {
         "scenario": scenario,
@@ -127,6 +130,21 @@ def check_options_layout(info: Mapping, scenario: str, obs_dim: int, options: Ma
         **layout_options(options),
         action_repeat=options.get("action_repeat", 1),
     )
+
+
+def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
+    """Check that the saved policy of ``info`` (from
+    :func:`~dockingrl.agents.saving.load_policy`) reads what the env of ``scenario`` built by
+    :func:`~dockingrl.make_env` with ``options`` (``observe_*``, ``action_repeat``) gives:
+    :func:`check_layout` against that env's observation spec. Raises
+    :class:`~dockingrl.io.ArtifactError`, one line saying what differs."""
+    from dockingrl.scenarios import make_env
+
+    if options.get("observe_current_error"):  # read from the filter that estimates it
+        filter_options = {**options.get("ekf_kwargs", {}), "estimate_current": True}
+        options = {**options, "ekf_kwargs": filter_options}
+    env = make_env(scenario, 1, **options)
+    check_options_layout(info, scenario, env.observation_spec["observation"].shape[-1], options)
 
 
 def check_actor_fits(actor, scenario: str, obs_dim: int, options: Mapping) -> None:

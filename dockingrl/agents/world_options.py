@@ -97,6 +97,11 @@ class WorldOptions:
         "after the scenario's entries (filtered and compound only; not in the paper)",
         default=False,
     )
+    observe_current_error: bool = documented(
+        "append the filter's estimate of the believed current's error to the policy's "
+        "observation, after the current's (with estimate_current; not in the paper)",
+        default=False,
+    )
     action_repeat: int = documented(
         "hold each action for this many env steps of 0.2 s (1: the paper's; not in the "
         "paper); total_steps, eval_every, start_steps and updates_per_step still count env "
@@ -124,7 +129,12 @@ class WorldOptions:
             counts=("action_repeat",),
             positive=("filter_response_rate",),
             fraction=(*TRAINING_DRAWS, "train_fossen_fraction"),
-            flags=("compensate_latency", "estimate_current", "observe_filter_std"),
+            flags=(
+                "compensate_latency",
+                "estimate_current",
+                "observe_filter_std",
+                "observe_current_error",
+            ),
         )
         for name, sigma in (
             ("range_noise_scale", "range_noise_fraction"),
@@ -137,9 +147,17 @@ class WorldOptions:
             refuse(self, "filter_params", f"scenario {self.scenario!r} has no filter")
         if not (0.0 <= self.filter_gate < math.inf):
             refuse(self, "filter_gate", "must be a chi-square threshold > 0, or 0 for no gate")
-        for name in ("compensate_latency", "estimate_current", "filter_gate", "observe_filter_std"):
+        for name in (
+            "compensate_latency",
+            "estimate_current",
+            "filter_gate",
+            "observe_filter_std",
+            "observe_current_error",
+        ):
             if getattr(self, name) and self.scenario not in FILTERED_OBSERVATION_KEYS:
                 refuse(self, name, f"scenario {self.scenario!r} has no filter")
+        if self.observe_current_error and not self.estimate_current:
+            refuse(self, "observe_current_error", "needs estimate_current (the filter's estimate)")
         if self.filter_response_rate != PAPER_RESPONSE_RATE and (
             self.scenario not in FILTERED_OBSERVATION_KEYS
         ):

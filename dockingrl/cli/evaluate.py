@@ -35,7 +35,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     policy, name, scenario, options, trained = policy_from_args(args)
     if trained:
-        from dockingrl.onboard import check_env_layout
+        from dockingrl.agents.layout import check_env_layout
 
         check_env_layout(trained, scenario, options)
     if args.mirrored:

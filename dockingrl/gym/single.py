@@ -26,7 +26,12 @@ from dockingrl.env.config import config_or_default
 from dockingrl.gym.bare import DockingGymEnv, gym_task_problem, reading_bounds
 from dockingrl.scenarios import layout_options, make_env, observation_layout
 from dockingrl.transforms import EKFTransform
-from dockingrl.transforms.ekf import filter_entries, measurement_function, measurement_noise_std
+from dockingrl.transforms.ekf import (
+    STATE_DIM,
+    filter_entries,
+    measurement_function,
+    measurement_noise_std,
+)
 from dockingrl.transforms.observations import position_std
 
 
@@ -44,6 +49,7 @@ def scenario_pipeline(
     observe_current: bool = False,
     observe_command: bool = False,
     observe_filter_std: bool = False,
+    observe_current_error: bool = False,
     following_current_fraction: float | None = None,
     lateral_current_fraction: float | None = None,
     near_start_fraction: float | None = None,
@@ -59,7 +65,8 @@ def scenario_pipeline(
     vehicle flown (``vehicle``: ``"paper"``, ``"fossen"`` or ``"mixed"``, docs/vehicles.md;
     ``None`` keeps ``config``'s).
     ``filter_params``, ``ekf_kwargs``, ``observe_current``, ``observe_command``,
-    ``observe_filter_std`` and ``compile`` are :func:`dockingrl.make_env`'s."""
+    ``observe_filter_std``, ``observe_current_error`` and ``compile`` are
+    :func:`dockingrl.make_env`'s."""
     config = config_or_default(config).scale_usbl_noise(range_noise_scale, bearing_noise_scale)
     draws = {
         "following_current_fraction": following_current_fraction,
@@ -80,6 +87,7 @@ def scenario_pipeline(
         observe_current=observe_current,
         observe_command=observe_command,
         observe_filter_std=observe_filter_std,
+        observe_current_error=observe_current_error,
     )
 
 
@@ -103,7 +111,8 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
     (:func:`dockingrl.scenarios.observation_layout`): readings as
     :func:`~dockingrl.gym.bare.reading_bounds`, the current within ``ocean_current_range``
     (one float32 step wider, as it is drawn in float32), the previous command within the
-    action bounds and the filter's standard deviations at 0 or more."""
+    action bounds, the filter's standard deviations at 0 or more and its estimate of the
+    current's error unbounded."""
     lows, highs = [], []
     for key in layout:
         if key in ("observation", "filtered_observation"):
@@ -120,6 +129,8 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
             high = np.array(config.action_high, dtype=np.float32)
         elif key == "filter_std":
             low, high = np.zeros(2, dtype=np.float32), np.full(2, np.inf, dtype=np.float32)
+        elif key == "current_error":
+            low, high = np.full(2, -np.inf, dtype=np.float32), np.full(2, np.inf, dtype=np.float32)
         else:
             raise ValueError(f"unknown observation entry {key!r}")
         lows.append(low)
@@ -192,6 +203,12 @@ class DockingScenarioEnv(DockingGymEnv):
             )
         pipeline = gym_pipeline(scenario, 1, **options)
         ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
+        if ekf is not None and ekf.state_dim != STATE_DIM:
+            raise ValueError(
+                "the single Gymnasium env filters with the paper's EKF (5 states): for the "
+                "filter that estimates the current (estimate_current) use the vector env "
+                "(gymnasium.make_vec) or make_env"
+            )
         if fast is None:
             config = pipeline.base_env.config
             fast = (

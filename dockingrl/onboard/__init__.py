@@ -3,6 +3,6 @@ out), its export as a ``torch.export`` or ONNX program, the sensor-log format an
 of a log through the onboard loop (docs/onboard.md)."""
 
 from dockingrl.onboard.export import export_onboard, export_onnx
-from dockingrl.onboard.policy import OnboardPolicy, OnboardStep, check_env_layout
+from dockingrl.onboard.policy import OnboardPolicy, OnboardStep
 
-__all__ = ["OnboardPolicy", "OnboardStep", "check_env_layout", "export_onboard", "export_onnx"]
+__all__ = ["OnboardPolicy", "OnboardStep", "export_onboard", "export_onnx"]

@@ -20,7 +20,6 @@ keeps the range and bearing its last estimates predicted.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
 
@@ -36,7 +35,6 @@ from dockingrl.env.realism import SENSORS
 from dockingrl.scenarios import (
     FILTERED_OBSERVATION_KEYS,
     SCENARIOS,
-    make_env,
     make_filter,
     observation_layout,
 )
@@ -45,19 +43,6 @@ from dockingrl.transforms.observations import position_std
 from dockingrl.transforms.repeat import check_action_repeat
 
 OBS_DIM = 6
-
-
-def check_env_layout(info: Mapping, scenario: str, options: Mapping) -> None:
-    """Check that the saved policy of ``info`` (from
-    :func:`~dockingrl.agents.saving.load_policy`) reads what the env of ``scenario`` built by
-    :func:`~dockingrl.make_env` with ``options`` (``observe_current``, ``observe_command``,
-    ``observe_filter_std``, ``action_repeat``) gives:
-    :func:`~dockingrl.agents.layout.check_layout` against that env's observation spec.
-    Raises :class:`~dockingrl.io.ArtifactError`, one line saying what differs."""
-    from dockingrl.agents.layout import check_options_layout
-
-    env = make_env(scenario, 1, **options)
-    check_options_layout(info, scenario, env.observation_spec["observation"].shape[-1], options)
 
 
 class OnboardStep(nn.Module):
@@ -84,8 +69,9 @@ class OnboardStep(nn.Module):
     ``current``; the previous ``command`` (zeros on an approach's first step, as
     :class:`~dockingrl.transforms.PreviousAction` gives it); the standard deviations of the
     filter's ``x`` and ``y`` after this step's update (:class:`~dockingrl.transforms.observations.
-    FilterStd`). The command returned is clipped to ``config``'s bounds (eq. 3), as the env
-    applies it."""
+    FilterStd`); the filter's estimate of the current's error after it (:class:`~dockingrl.
+    transforms.observations.CurrentError`). The command returned is clipped to ``config``'s
+    bounds (eq. 3), as the env applies it."""
 
     def __init__(
         self,
@@ -100,6 +86,8 @@ class OnboardStep(nn.Module):
         super().__init__()
         trained = getattr(actor, "trained_on", None)  # an actor from load_policy
         if trained is not None:
+            from dockingrl.agents.layout import check_env_layout
+
             check_env_layout(trained, scenario, {**observe, "action_repeat": action_repeat})
         self.actor, self.scenario, self.ekf = actor, scenario, ekf
         config = config_or_default(config)
@@ -129,6 +117,7 @@ class OnboardStep(nn.Module):
                 z, current, mean, cov, command, age, sensor_age, history
             )
             parts["filter_std"] = position_std(cov)
+            parts["current_error"] = mean[..., STATE_DIM:]
         else:
             age = torch.where(age < 0, torch.zeros_like(age), age + 1)
         parts["previous_action"] = torch.where(age == 0, torch.zeros_like(command), command)
@@ -174,6 +163,8 @@ class OnboardPolicy(nn.Module):
         observe_command: the actor also reads its previous command (``--observe-command``).
         observe_filter_std: the actor also reads the filter's position uncertainty
             (``--observe-filter-std``).
+        observe_current_error: the actor also reads the filter's estimate of the current's
+            error (``--observe-current-error``; needs ``estimate_current``).
         action_repeat: the actor decides every this many steps and its command is held in
             between (``--action-repeat``).
         config: the env config whose step length and command bounds the filter assumes.
@@ -196,6 +187,7 @@ class OnboardPolicy(nn.Module):
         observe_current: bool = False,
         observe_command: bool = False,
         observe_filter_std: bool = False,
+        observe_current_error: bool = False,
         action_repeat: int = 1,
         config: DockingConfig | None = None,
         compensate_latency: bool = False,
@@ -229,6 +221,12 @@ class OnboardPolicy(nn.Module):
         config = config_or_default(config)
         observe = {"observe_current": observe_current, "observe_command": observe_command}
         observe["observe_filter_std"] = observe_filter_std
+        observe["observe_current_error"] = observe_current_error
+        if observe_current_error and not estimate_current:
+            raise ValueError(
+                "observe_current_error needs the filter that estimates the current's error "
+                "(estimate_current=True)"
+            )
         ekf = None
         if self.uses_filter:
             ekf = make_filter(
@@ -391,4 +389,4 @@ class OnboardPolicy(nn.Module):
         return value
 
 
-__all__ = ["OBS_DIM", "OnboardPolicy", "OnboardStep", "check_env_layout"]
+__all__ = ["OBS_DIM", "OnboardPolicy", "OnboardStep"]

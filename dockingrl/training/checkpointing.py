@@ -169,6 +169,7 @@ NETWORK_FIELDS = (
     "observe_current",
     "observe_command",
     "observe_filter_std",
+    "observe_current_error",
 )
 
 

@@ -1,6 +1,6 @@
 """Observations derived from entries of the same step, as TorchRL transforms: the paper's
 compound observation (Sec. 3.5, Figure 3), raw and filtered readings side by side, and the
-filter's position uncertainty (not in the paper).
+filter's position uncertainty and estimate of the current's error (not in the paper).
 
 The paper's policies read the EKF's estimate (Sec. 3.5) without its covariance: a position
 fixed a moment ago and one predicted through a second of lost or refused USBL fixes look the
@@ -18,6 +18,8 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
+
+from dockingrl.transforms.ekf import STATE_DIM
 
 
 class DerivedEntry(Transform):
@@ -70,6 +72,39 @@ def position_std(cov: torch.Tensor) -> torch.Tensor:
     """The standard deviations (m) of the estimate's ``x`` and ``y`` (the first two entries of
     the EKF state, eq. 22) from its covariance ``(..., n, n)``: ``(..., 2)``."""
     return cov.diagonal(dim1=-2, dim2=-1)[..., :2].clamp_min(0.0).sqrt()
+
+
+class CurrentError(DerivedEntry):
+    """Writes the filter's estimate of the error of the believed current, the last two entries
+    of the mean of :class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF` (eq. 26's
+    ``b``: the current it flies by is ``ocean_current + b``), as ``out_key`` (default
+    ``current_error``), after each step and reset; place it after that filter.
+
+    ``make_env(..., observe_current_error=True)`` appends it to ``observation``, after the
+    current's. The mirror ``y -> -y`` negates its second entry, as the current's.
+    """
+
+    def __init__(self, ekf, *, out_key: str = "current_error") -> None:
+        if getattr(ekf, "state_dim", None) != STATE_DIM + 2:
+            raise ValueError(
+                "observe_current_error needs the filter that estimates the current's error "
+                "(estimate_current)"
+            )
+        super().__init__(in_keys=[ekf.mean_key], out_keys=[out_key])
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        mean = next_tensordict.get(self.in_keys[0])
+        next_tensordict.set(self.out_keys[0], mean[..., STATE_DIM:].clone())
+        return next_tensordict
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        if self.in_keys[0] not in observation_spec.keys(True):
+            raise ValueError(f"CurrentError needs {self.in_keys[0]!r}: place it after the EKF")
+        mean = observation_spec[self.in_keys[0]]
+        observation_spec[self.out_keys[0]] = Unbounded(
+            shape=(*mean.shape[:-1], 2), device=mean.device, dtype=mean.dtype
+        )
+        return observation_spec
 
 
 class FilterStd(DerivedEntry):
