@@ -127,6 +127,20 @@ def test_same_numbers_with_every_option(tmp_path):
     assert info["ocean_current"][0] >= 0  # a following current
 
 
+def test_the_current_estimating_filter_and_its_error_observed_give_the_pipelines_numbers():
+    options = dict(
+        ekf_kwargs={"estimate_current": True},
+        observe_current=True,
+        observe_current_error=True,
+        config=DockingConfig(max_steps=80),
+    )
+    env = gymnasium.make(ID, scenario="filtered", **options)
+    assert not env.unwrapped.fast  # the fast path runs the paper's filter only
+    reference = make_env("filtered", 1, seed=3, **options)
+    assert env.observation_space.shape == (10,)
+    _step_for_step(env, reference, 3, 120)
+
+
 def test_observation_spaces_and_dtypes():
     shapes = {"no_noise": 6, "noise": 6, "filtered": 6, "compound": 12}
     for scenario, size in shapes.items():

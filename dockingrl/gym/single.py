@@ -29,7 +29,6 @@ from dockingrl.transforms import EKFTransform
 from dockingrl.transforms.ekf import (
     STATE_DIM,
     filter_entries,
-    measurement_function,
     measurement_noise_std,
 )
 from dockingrl.transforms.observations import position_std
@@ -141,6 +140,10 @@ def observation_space(layout: tuple[str, ...], config: DockingConfig) -> spaces.
 def _fast_filter_problem(ekf: EKFTransform, config: DockingConfig) -> str | None:
     """Why the fast path cannot run ``ekf`` (``None``: it can): it filters with the paper's
     EKF only, on the env's action bounds."""
+    if ekf.state_dim != STATE_DIM:
+        return (
+            "fast=True filters with the paper's EKF; this one estimates the current: use fast=False"
+        )
     if ekf.process_noise.manoeuvre or ekf.context_noise or ekf.gate is not None:
         return (
             "fast=True filters with a constant Q, a diagonal R and no gate (the paper's "
@@ -203,12 +206,6 @@ class DockingScenarioEnv(DockingGymEnv):
             )
         pipeline = gym_pipeline(scenario, 1, **options)
         ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
-        if ekf is not None and ekf.state_dim != STATE_DIM:
-            raise ValueError(
-                "the single Gymnasium env filters with the paper's EKF (5 states): for the "
-                "filter that estimates the current (estimate_current) use the vector env "
-                "(gymnasium.make_vec) or make_env"
-            )
         if fast is None:
             config = pipeline.base_env.config
             fast = (
@@ -241,8 +238,9 @@ class DockingScenarioEnv(DockingGymEnv):
             z, current = out["observation"], out["ocean_current"]
             mean, cov = self._ekf.initial_estimate(z, current)
             self._extra = (mean, cov, torch.zeros(1, dtype=z.dtype))
-            parts["filtered_observation"] = measurement_function(mean, current)
+            parts["filtered_observation"] = self._ekf.filtered_readings(mean, current)
             parts["filter_std"] = position_std(cov)
+            parts["current_error"] = mean[..., STATE_DIM:]
         return self._observation(parts)
 
     def _float_filter_constants(self) -> None:
@@ -305,6 +303,7 @@ class DockingScenarioEnv(DockingGymEnv):
             extra = (mean, cov, age + 1)
             parts["filtered_observation"] = filtered
             parts["filter_std"] = position_std(cov)
+            parts["current_error"] = mean[..., STATE_DIM:]
         return self._observation(parts), extra
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
