@@ -162,7 +162,7 @@ def test_onboard_policy_and_its_export_estimate_as_the_env_pipeline_does(tmp_pat
 def test_the_estimated_error_is_observed_only_from_the_filter_that_estimates_it():
     from helpers import tiny_actor
 
-    from dockingrl.onboard import OnboardPolicy
+    from dockingrl.onboard import OnboardPolicy, OnboardStep
 
     with pytest.raises(ValueError, match="needs the filter that estimates the current's error"):
         make_env("filtered", 2, seed=0, observe_current_error=True)
@@ -170,6 +170,15 @@ def test_the_estimated_error_is_observed_only_from_the_filter_that_estimates_it(
         make_env("noise", 2, seed=0, observe_current_error=True)
     with pytest.raises(ValueError, match="needs the filter that estimates the current's error"):
         OnboardPolicy(tiny_actor(8, "sac"), "filtered", observe_current_error=True)
+    with pytest.raises(ValueError, match="needs a scenario with the EKF"):
+        OnboardPolicy(tiny_actor(8, "sac"), "noise", observe_current_error=True)
+    with pytest.raises(ValueError, match="needs the filter that estimates the current's error"):
+        OnboardStep(
+            tiny_actor(8, "sac"),
+            "filtered",
+            make_filter(DockingConfig()),
+            observe_current_error=True,
+        )
     signs = mirror_signs("filtered", observe_current=True, observe_current_error=True)
     assert signs[-4:].tolist() == [1.0, -1.0, 1.0, -1.0]  # oc_y and b_y flip with the mirror
 

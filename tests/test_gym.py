@@ -139,6 +139,8 @@ def test_the_current_estimating_filter_and_its_error_observed_give_the_pipelines
     reference = make_env("filtered", 1, seed=3, **options)
     assert env.observation_space.shape == (10,)
     _step_for_step(env, reference, 3, 120)
+    with pytest.raises(ValueError, match="CurrentEstimatingEKF does not support compile=True"):
+        gymnasium.make(ID, scenario="filtered", compile=True, **options)
 
 
 def test_observation_spaces_and_dtypes():

@@ -206,6 +206,8 @@ class DockingScenarioEnv(DockingGymEnv):
             )
         pipeline = gym_pipeline(scenario, 1, **options)
         ekf = next((t for t in pipeline.transform if isinstance(t, EKFTransform)), None)
+        if compile and ekf is not None and ekf.state_dim != STATE_DIM:
+            raise ValueError("CurrentEstimatingEKF does not support compile=True")
         if fast is None:
             config = pipeline.base_env.config
             fast = (

@@ -94,6 +94,11 @@ class OnboardStep(nn.Module):
         self.register_buffer("action_low", torch.tensor(config.action_low))
         self.register_buffer("action_high", torch.tensor(config.action_high))
         self.layout = observation_layout(scenario, **observe)
+        if "current_error" in self.layout and getattr(ekf, "state_dim", None) != STATE_DIM + 2:
+            raise ValueError(
+                "observe_current_error needs the filter that estimates the current's error "
+                "(estimate_current=True)"
+            )
         self.action_repeat = check_action_repeat(action_repeat)
 
     @property
@@ -222,11 +227,6 @@ class OnboardPolicy(nn.Module):
         observe = {"observe_current": observe_current, "observe_command": observe_command}
         observe["observe_filter_std"] = observe_filter_std
         observe["observe_current_error"] = observe_current_error
-        if observe_current_error and not estimate_current:
-            raise ValueError(
-                "observe_current_error needs the filter that estimates the current's error "
-                "(estimate_current=True)"
-            )
         ekf = None
         if self.uses_filter:
             ekf = make_filter(
