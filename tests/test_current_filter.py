@@ -321,3 +321,5 @@ def test_a_run_observes_the_estimated_error_only_with_the_filter_that_estimates_
         load_recipe("sac").make_config(scenario="noise", observe_current_error=True)
     cfg = recipe.make_config(observe_current_error=True)
     assert cfg.observe_current_error and cfg.estimate_current
+    with pytest.raises(ValueError, match="compile: not with estimate_current"):
+        recipe.make_config(compile=True)  # refused before its env is built

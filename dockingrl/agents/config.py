@@ -85,6 +85,8 @@ class TrainConfig(*TRAIN_GROUPS):
         self._check_reward()
         self._check_network()
         self._check_curriculum()
+        if self.compile and self.estimate_current:
+            refuse(self, "compile", "not with estimate_current (its filter does not compile)")
 
     def collected_transitions(self) -> int:
         """The transitions of one collected batch (all envs; each ``action_repeat`` env
