@@ -39,7 +39,7 @@ from dockingrl.scenarios import (
     observation_layout,
 )
 from dockingrl.transforms.ekf import STATE_DIM
-from dockingrl.transforms.observations import position_std
+from dockingrl.transforms.observations import check_estimates_current, position_std
 from dockingrl.transforms.repeat import check_action_repeat
 
 OBS_DIM = 6
@@ -94,11 +94,8 @@ class OnboardStep(nn.Module):
         self.register_buffer("action_low", torch.tensor(config.action_low))
         self.register_buffer("action_high", torch.tensor(config.action_high))
         self.layout = observation_layout(scenario, **observe)
-        if "current_error" in self.layout and getattr(ekf, "state_dim", None) != STATE_DIM + 2:
-            raise ValueError(
-                "observe_current_error needs the filter that estimates the current's error "
-                "(estimate_current=True)"
-            )
+        if "current_error" in self.layout:
+            check_estimates_current(ekf)
         self.action_repeat = check_action_repeat(action_repeat)
 
     @property

@@ -74,7 +74,49 @@ def position_std(cov: torch.Tensor) -> torch.Tensor:
     return cov.diagonal(dim1=-2, dim2=-1)[..., :2].clamp_min(0.0).sqrt()
 
 
-class CurrentError(DerivedEntry):
+class FilterPair(DerivedEntry):
+    """Base of the transforms that write two numbers read off one of the filter's entries
+    (``in_key``: its mean, :attr:`source_dims` 1, or its covariance, 2) as ``out_key``, after
+    each step and reset (:meth:`pair`); place them after the filter."""
+
+    source_dims = 1
+
+    def __init__(self, in_key: str, out_key: str) -> None:
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+
+    @staticmethod
+    def pair(source: torch.Tensor) -> torch.Tensor:
+        """The two numbers ``(..., 2)`` of the filter's entry ``source``."""
+        raise NotImplementedError
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        next_tensordict.set(self.out_keys[0], self.pair(next_tensordict.get(self.in_keys[0])))
+        return next_tensordict
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        if self.in_keys[0] not in observation_spec.keys(True):
+            raise ValueError(
+                f"{type(self).__name__} needs {self.in_keys[0]!r}: place it after the EKF"
+            )
+        source = observation_spec[self.in_keys[0]]
+        observation_spec[self.out_keys[0]] = Unbounded(
+            shape=(*source.shape[: -self.source_dims], 2), device=source.device, dtype=source.dtype
+        )
+        return observation_spec
+
+
+def check_estimates_current(ekf) -> None:
+    """Refuse, in one line, a filter ``ekf`` (or ``None``) that does not estimate the current's
+    error (:class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF`), for an
+    observation of that estimate."""
+    if getattr(ekf, "state_dim", None) != STATE_DIM + 2:
+        raise ValueError(
+            "observe_current_error needs the filter that estimates the current's error "
+            "(estimate_current=True)"
+        )
+
+
+class CurrentError(FilterPair):
     """Writes the filter's estimate of the error of the believed current, the last two entries
     of the mean of :class:`~dockingrl.transforms.current_filter.CurrentEstimatingEKF` (eq. 26's
     ``b``: the current it flies by is ``ocean_current + b``), as ``out_key`` (default
@@ -85,29 +127,15 @@ class CurrentError(DerivedEntry):
     """
 
     def __init__(self, ekf, *, out_key: str = "current_error") -> None:
-        if getattr(ekf, "state_dim", None) != STATE_DIM + 2:
-            raise ValueError(
-                "observe_current_error needs the filter that estimates the current's error "
-                "(estimate_current)"
-            )
-        super().__init__(in_keys=[ekf.mean_key], out_keys=[out_key])
+        check_estimates_current(ekf)
+        super().__init__(ekf.mean_key, out_key)
 
-    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        mean = next_tensordict.get(self.in_keys[0])
-        next_tensordict.set(self.out_keys[0], mean[..., STATE_DIM:].clone())
-        return next_tensordict
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        if self.in_keys[0] not in observation_spec.keys(True):
-            raise ValueError(f"CurrentError needs {self.in_keys[0]!r}: place it after the EKF")
-        mean = observation_spec[self.in_keys[0]]
-        observation_spec[self.out_keys[0]] = Unbounded(
-            shape=(*mean.shape[:-1], 2), device=mean.device, dtype=mean.dtype
-        )
-        return observation_spec
+    @staticmethod
+    def pair(source: torch.Tensor) -> torch.Tensor:
+        return source[..., STATE_DIM:].clone()
 
 
-class FilterStd(DerivedEntry):
+class FilterStd(FilterPair):
     """Writes :func:`position_std` of the EKF's covariance (``cov_key``, as
     :class:`~dockingrl.transforms.EKFTransform` keeps it) as ``out_key`` (default
     ``filter_std``), after each step and reset; place it after the filter.
@@ -117,18 +145,11 @@ class FilterStd(DerivedEntry):
     mirror ``y -> -y`` leaves both numbers unchanged.
     """
 
+    source_dims = 2
+
     def __init__(self, *, cov_key: str = "ekf_cov", out_key: str = "filter_std") -> None:
-        super().__init__(in_keys=[cov_key], out_keys=[out_key])
+        super().__init__(cov_key, out_key)
 
-    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        next_tensordict.set(self.out_keys[0], position_std(next_tensordict.get(self.in_keys[0])))
-        return next_tensordict
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        if self.in_keys[0] not in observation_spec.keys(True):
-            raise ValueError(f"FilterStd needs {self.in_keys[0]!r}: place it after the EKF")
-        cov = observation_spec[self.in_keys[0]]
-        observation_spec[self.out_keys[0]] = Unbounded(
-            shape=(*cov.shape[:-2], 2), device=cov.device, dtype=cov.dtype
-        )
-        return observation_spec
+    @staticmethod
+    def pair(source: torch.Tensor) -> torch.Tensor:
+        return position_std(source)
