@@ -9,6 +9,7 @@ from pathlib import Path
 
 from dockingrl.env import DockingConfig
 from dockingrl.env.levels import LEVELS, level_config
+from dockingrl.table.claims import episodes_ci
 
 FAILURES = ("timeout", "missed_funnel", "too_fast")
 
@@ -87,8 +88,9 @@ def stress_ladder(
 
 
 def stress_table(result: dict, name: str = "policy") -> str:
-    """The ladder as a markdown table: success, the failure split and the success under
-    strong lateral currents (``by_current_y``'s top third) per level."""
+    """The ladder as a markdown table: success with its 95 % Wilson interval over the episodes,
+    the failure split and the success under strong lateral currents (``by_current_y``'s top
+    third) per level."""
     lines = [
         f"Stress ladder of {name} on `{result['scenario']}`, {result['episodes']} episodes a "
         f"level, seed {result['seed']}"
@@ -99,14 +101,16 @@ def stress_table(result: dict, name: str = "policy") -> str:
         "A strong lateral current: |oc_y| at the start in the top third of its range (0.2-0.3 "
         "m/s in the paper's draw), where the drift alone nears the 0.3 m/s contact limit.",
         "",
-        "| level | what breaks | success % | timeout | missed funnel | too fast | "
+        "| level | what breaks | success % | 95 % interval | timeout | missed funnel | too fast | "
         "strong lateral current: success % (episodes) |",
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for row in result["levels"]:
         failures = row["failures"]
+        low, high = episodes_ci([row["success_rate"]], [row["episodes"]])
         lines.append(
             f"| {row['name']} | {row['description']} | {row['success_rate']:.1f} | "
+            f"[{low:.1f}, {high:.1f}] | "
             + " | ".join(str(failures[k]) for k in FAILURES)
             + f" | {_strong_lateral(row)} |"
         )
